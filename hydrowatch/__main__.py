@@ -1,0 +1,5 @@
+import sys
+
+from hydrowatch.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the ``hydrowatch`` CLI, one module each (see :mod:`hydrowatch.cli`)."""

@@ -1,0 +1,102 @@
+"""A recording: one machine over one stretch of time at a fixed sample rate, in memory.
+
+This is the in-memory form every part of hydrowatch exchanges (the simulator makes it, the file
+formats in :mod:`hydrowatch.io` read and write it, identification and scoring consume it).
+Channel names and units are the contract's (../shared/docs/contract.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.errors import DataError
+
+SAMPLE_RATE_HZ = 200.0
+"""Sample rate of every recording, Hz."""
+
+INPUT = "voltage"
+SENSORS: tuple[str, ...] = ("flow", "speed", "torque")
+"""The three sparse sensors the health model uses, in contract order."""
+
+UNITS: dict[str, str] = {
+    "t": "s",
+    "voltage": "V",
+    "flow": "L/min",
+    "speed": "rad/s",
+    "torque": "N·m",
+    "supply_pressure": "bar",
+    "load_pressure": "bar",
+    "temperature": "°C",
+}
+REQUIRED_CHANNELS: tuple[str, ...] = ("voltage", "flow", "speed", "torque")
+OPTIONAL_CHANNELS: tuple[str, ...] = ("supply_pressure", "load_pressure", "temperature")
+
+
+@dataclass
+class Recording:
+    """Samples of one machine.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Sample times, s, strictly increasing.
+    channels : dict of str to ndarray, shape (n,)
+        ``voltage`` [V], ``flow`` [L/min], ``speed`` [rad/s], ``torque`` [N·m] and optionally
+        ``supply_pressure``, ``load_pressure`` [bar], ``temperature`` [°C].
+    meta : dict
+        ``fleet``, ``machine``, ``state`` (health label, or None), and anything else worth keeping
+        (seed, parameters, effects).
+    """
+
+    t: np.ndarray
+    channels: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=np.float64)
+        self.channels = {k: np.asarray(v, dtype=np.float64) for k, v in self.channels.items()}
+        n = self.t.shape[0]
+        for name, values in self.channels.items():
+            if values.shape != (n,):
+                raise DataError(
+                    f"channel '{name}' must have shape ({n},) like 't'. Got {values.shape}.",
+                    self.meta.get("source"),
+                )
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "t":
+            return self.t
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise KeyError(f"recording has no channel '{name}'; it has {sorted(self.channels)}") from None
+
+    @property
+    def state(self) -> str | None:
+        """Health label of the recording, or None when unknown."""
+        return self.meta.get("state")
+
+    @property
+    def duration(self) -> float:
+        """Length in seconds (n / sample rate)."""
+        return len(self) / SAMPLE_RATE_HZ
+
+    def slice(self, start: int, stop: int) -> Recording:
+        """Samples ``start:stop`` as a new recording sharing the metadata."""
+        return Recording(self.t[start:stop], {k: v[start:stop] for k, v in self.channels.items()}, dict(self.meta))
+
+    @classmethod
+    def from_columns(cls, columns: Mapping[str, np.ndarray], meta: Mapping[str, Any] | None = None) -> Recording:
+        """Build from a mapping that includes ``t``; other keys become channels."""
+        cols = dict(columns)
+        if "t" not in cols:
+            raise DataError("column 't' [s] is missing.", (meta or {}).get("source"))
+        t = cols.pop("t")
+        return cls(t, cols, dict(meta or {}))
