@@ -1,0 +1,256 @@
+"""Right-hand side of the plant's differential equations (plant-model.md, equations 1–8), compiled.
+
+:func:`rates` evaluates the state derivative and the three raw sensors of one machine for a given
+spool command, including every switched-on effect of the catalog. It is branch-cheap: an effect
+that is off costs one comparison. The integrator around it lives in :mod:`hydrowatch.plant.kernel`.
+
+ODE state of one machine (``N_ODE`` entries, SI units)::
+
+    0 x      spool position, normalised (-1…1)       5 wL   load speed (flexible driveline), rad/s
+    1 v      spool rate, 1/s                          6 th   twist gearbox output - load, rad
+    2 Ps     supply pressure, Pa                      7 T    oil temperature, °C (thermal_drift)
+    3 PL     load pressure PA - PB, Pa                8 yf   filtered sensor (sensor_lowpass)
+    4 wm     motor speed, rad/s
+
+Without gear_backlash and shaft_compliance the driveline is rigid (Eq. 7) and ``wL``, ``th`` stay 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from hydrowatch.plant.effects import EFFECT_OFFSET, REFERENCE_TEMPERATURE_C
+from hydrowatch.plant.parameters import PARAMETER_INDEX
+
+N_ODE = 9
+X, V, PS, PL, WM, WL, TH, TEMP, YF = range(N_ODE)
+
+M3S_TO_LPM = 60000.0
+"""m³/s → L/min."""
+P_ATM = 101325.0
+"""Atmospheric pressure, Pa (entrained_air works with absolute pressure)."""
+CONTACT_DEPTH = 1e-3
+"""Penetration at which gear_backlash's contact damping is fully engaged, rad."""
+
+# Parameter columns (numba freezes module-level ints as constants).
+_DP, _WP, _CP, _PC, _KR = (PARAMETER_INDEX[k] for k in ("Dp", "omega_p", "Cp", "Pc", "Kr"))
+_VS, _BE, _KQ, _UMAX = (PARAMETER_INDEX[k] for k in ("Vs", "beta_e", "Kq", "u_max"))
+_WV, _ZV, _KC, _CVL, _CVX = (PARAMETER_INDEX[k] for k in ("omega_v", "zeta_v", "Kc", "Cvl", "Cvx"))
+_VT, _DM, _CTM, _JM, _BM = (PARAMETER_INDEX[k] for k in ("Vt", "Dm", "Ctm", "Jm", "Bm"))
+_N, _ETA, _JL, _BL, _TL, _WS = (PARAMETER_INDEX[k] for k in ("N", "eta", "JL", "BL", "TL", "omega_s"))
+_CPL = PARAMETER_INDEX["Cpl"]
+
+# Coefficient columns: the parameters combined once per machine and chunk (products, reciprocals).
+N_COEF = 24
+(C_QGEO, C_WP, C_CPUMP, C_KR, C_PC, C_SPOOL, C_WV2, C_DAMP, C_KQ, C_BE, C_BE_VS, C_INV_VS, C_4_VT, C_CVL, C_CVX,
+ C_DM, C_CTM, C_BM, C_INV_N, C_INV_NETA, C_INV_JT, C_INV_JM, C_INV_JL, C_JL_N) = range(N_COEF)
+N_LOAD = 3
+C_TL, C_INV_WS, C_BL = range(N_COEF, N_COEF + N_LOAD)
+
+
+@njit(cache=True, error_model="numpy")
+def coefficients(p: np.ndarray, c: np.ndarray) -> None:
+    """Fill c (shape (N_COEF + 3,)) from one parameter row p: the products and reciprocals rates() uses."""
+    c[C_QGEO] = p[_DP] * p[_WP]
+    c[C_WP] = p[_WP]
+    c[C_CPUMP] = p[_CP] + p[_CPL]
+    c[C_KR] = p[_KR]
+    c[C_PC] = p[_PC]
+    c[C_SPOOL] = p[_WV] * p[_WV] * p[_KC] / p[_UMAX]
+    c[C_WV2] = p[_WV] * p[_WV]
+    c[C_DAMP] = 2.0 * p[_ZV] * p[_WV]
+    c[C_KQ] = p[_KQ]
+    c[C_BE] = p[_BE]
+    c[C_BE_VS] = p[_BE] / p[_VS]
+    c[C_INV_VS] = 1.0 / p[_VS]
+    c[C_4_VT] = 4.0 / p[_VT]
+    c[C_CVL] = p[_CVL]
+    c[C_CVX] = p[_CVX]
+    c[C_DM] = p[_DM]
+    c[C_CTM] = p[_CTM]
+    c[C_BM] = p[_BM]
+    c[C_INV_N] = 1.0 / p[_N]
+    c[C_INV_NETA] = 1.0 / (p[_N] * p[_ETA])
+    c[C_INV_JT] = 1.0 / (p[_JM] + p[_JL] / (p[_N] * p[_N] * p[_ETA]))
+    c[C_INV_JM] = 1.0 / p[_JM]
+    c[C_INV_JL] = 1.0 / p[_JL]
+    c[C_JL_N] = p[_JL] / p[_N]
+    c[C_TL] = p[_TL]
+    c[C_INV_WS] = 1.0 / p[_WS]
+    c[C_BL] = p[_BL]
+
+
+# Effect columns: switch, then parameters in catalog order.
+_FRICTION = EFFECT_OFFSET["stribeck_friction"]
+_DRAG = EFFECT_OFFSET["quadratic_drag"]
+_DEADBAND = EFFECT_OFFSET["valve_deadband"]
+_SATURATION = EFFECT_OFFSET["valve_saturation"]
+_AIR = EFFECT_OFFSET["entrained_air"]
+_RIPPLE = EFFECT_OFFSET["pump_ripple"]
+_THERMAL = EFFECT_OFFSET["thermal_drift"]
+_BACKLASH = EFFECT_OFFSET["gear_backlash"]
+_SHAFT = EFFECT_OFFSET["shaft_compliance"]
+_LOWPASS = EFFECT_OFFSET["sensor_lowpass"]
+_T_REF = REFERENCE_TEMPERATURE_C
+
+
+@njit(cache=True, error_model="numpy")
+def _air_bulk_modulus(beta_oil: float, p_gauge: float, alpha: float, n: float) -> float:
+    """Effective bulk modulus of oil with free air, Pa (mixture rule, air compressed polytropically).
+
+    With the air volume fraction at absolute pressure p, ε = α·r / (1 − α + α·r), r = (p_atm/p)^(1/n):
+    1/β = (1 − ε)/β_oil + ε/(n·p).
+    """
+    p_abs = max(p_gauge, 0.0) + P_ATM
+    r = (P_ATM / p_abs) ** (1.0 / n)
+    eps = alpha * r / (1.0 - alpha + alpha * r)
+    return 1.0 / ((1.0 - eps) / beta_oil + eps / (n * p_abs))
+
+
+@njit(cache=True, error_model="numpy")
+def _load_torque(c: np.ndarray, e: np.ndarray, w: float) -> float:
+    """TL_total at gearbox output speed w (Eq. 7: brake TL·tanh(w/ωs) + BL·w), plus quadratic_drag, N·m."""
+    torque = c[C_TL] * math.tanh(w * c[C_INV_WS]) + c[C_BL] * w
+    if e[_DRAG] > 0.5:
+        torque += e[_DRAG + 1] * w * abs(w)
+    return torque
+
+
+@njit(cache=True, error_model="numpy")
+def shaft_torque(e: np.ndarray, theta: float, slip: float) -> float:
+    """Torque through a flexible driveline (gear_backlash and/or shaft_compliance), N·m.
+
+    Parameters
+    ----------
+    e : ndarray, shape (EFFECT_WIDTH,)
+        Effect row.
+    theta : float
+        Twist, gearbox output angle minus load angle, rad.
+    slip : float
+        d(theta)/dt, rad/s.
+
+    Notes
+    -----
+    shaft_compliance alone: G·θ + c·θ' (the G·θ term of study Eq. 2.4). With gear_backlash the
+    spring acts on the twist beyond the play b, δ = sign(θ)·max(|θ| − b, 0), its damping grows
+    with penetration (c·min(|δ|/δ0, 1), δ0 = 1 mrad, so contact starts without a force jump)
+    and teeth in contact never pull. Backlash and shaft springs in series when both are on.
+    """
+    if e[_SHAFT] > 0.5:
+        stiffness, damping = e[_SHAFT + 1], e[_SHAFT + 2]
+        if e[_BACKLASH] <= 0.5:
+            return stiffness * theta + damping * slip
+        stiffness = 1.0 / (1.0 / stiffness + 1.0 / e[_BACKLASH + 2])
+    else:
+        stiffness, damping = e[_BACKLASH + 2], e[_BACKLASH + 3]
+    penetration = math.copysign(max(abs(theta) - e[_BACKLASH + 1], 0.0), theta)
+    torque = stiffness * penetration + damping * min(abs(penetration) / CONTACT_DEPTH, 1.0) * slip
+    return torque if torque * penetration > 0.0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock: bool,
+          ds: np.ndarray, sensors: np.ndarray) -> None:
+    """State derivative and raw sensors of one machine.
+
+    Parameters
+    ----------
+    c : ndarray, shape (N_COEF + 3,)
+        Coefficients of the machine's parameters (:func:`coefficients`).
+    e : ndarray, shape (EFFECT_WIDTH,)
+        Effect row (see :data:`hydrowatch.plant.effects.EFFECT_OFFSET`).
+    s : ndarray, shape (N_ODE,)
+        ODE state (module docstring).
+    u : float
+        Command reaching the spool, V (after hysteresis and dead time).
+    t : float
+        Time, s (pump_ripple's phase).
+    clock : bool
+        False freezes the oil temperature (settling).
+    ds : ndarray, shape (N_ODE,)
+        Output: d(state)/dt.
+    sensors : ndarray, shape (3,)
+        Output: flow [L/min], gearbox speed [rad/s], shaft torque [N·m] before filter and noise (Eq. 8).
+    """
+    ps = max(s[PS], 0.0)
+    pl = min(max(s[PL], -ps), ps)
+    x = s[X]
+    wm = s[WM]
+
+    # thermal_drift: laminar leakages ∝ 1/viscosity, viscous damping ∝ viscosity.
+    leak = 1.0  # leakage factor at the current oil temperature
+    ds[TEMP] = 0.0
+    if e[_THERMAL] > 0.5:
+        leak = math.exp(e[_THERMAL + 4] * (s[TEMP] - _T_REF))
+        if clock:
+            ds[TEMP] = (e[_THERMAL + 2] - s[TEMP]) / e[_THERMAL + 3]
+
+    beta_s = c[C_BE_VS]
+    beta_l = c[C_BE]
+    if e[_AIR] > 0.5:
+        alpha, n_poly = e[_AIR + 1], e[_AIR + 2]
+        beta_s = _air_bulk_modulus(c[C_BE], ps, alpha, n_poly) * c[C_INV_VS]
+        # Chamber pressures of a symmetric valve: PA = (Ps + PL)/2, PB = (Ps - PL)/2.
+        beta_l = 0.5 * (_air_bulk_modulus(c[C_BE], 0.5 * (ps + pl), alpha, n_poly)
+                        + _air_bulk_modulus(c[C_BE], 0.5 * (ps - pl), alpha, n_poly))
+
+    # Eq. 1 pump and Eq. 2 relief valve (study Eq. 2.1, 2.5).
+    q_geo = c[C_QGEO]
+    if e[_RIPPLE] > 0.5:
+        phase = c[C_WP] * t
+        q_geo *= 1.0 + e[_RIPPLE + 1] * math.sin(phase) + e[_RIPPLE + 2] * math.sin(2.0 * phase)
+    qp = q_geo - c[C_CPUMP] * leak * ps
+    qr = c[C_KR] * max(0.0, ps - c[C_PC])
+
+    # Eq. 3 spool.
+    ds[X] = s[V]
+    ds[V] = c[C_SPOOL] * u - c[C_WV2] * x - c[C_DAMP] * s[V]
+
+    # Eq. 4 valve flow (study Eq. 2.2) through the metering opening.
+    xo = x
+    if e[_SATURATION] > 0.5:
+        xo = min(max(xo, -e[_SATURATION + 1]), e[_SATURATION + 1])
+    if e[_DEADBAND] > 0.5:
+        d = e[_DEADBAND + 1]
+        xo = math.copysign(max(abs(xo) - d, 0.0) / (1.0 - d), xo)
+    drop = ps - pl if xo >= 0.0 else ps + pl
+    ql = c[C_KQ] * xo * math.sqrt(max(drop, 0.0))
+
+    # Eq. 5 supply line, Eq. 6 motor chambers (study Eq. 2.3).
+    ds[PS] = beta_s * (qp - qr - abs(ql) - c[C_CVL] * leak * ps)
+    cvx = c[C_CVX] * leak
+    ds[PL] = c[C_4_VT] * beta_l * (ql - cvx * pl - c[C_DM] * wm - c[C_CTM] * leak * pl)
+
+    # Eq. 7 shaft (study Eq. 2.4), reflected to the motor; stribeck_friction acts on the motor.
+    friction = 0.0
+    if e[_FRICTION] > 0.5:
+        tc, ts, w_st, w_eps = e[_FRICTION + 1], e[_FRICTION + 2], e[_FRICTION + 3], e[_FRICTION + 4]
+        friction = (tc + (ts - tc) * math.exp(-((wm / w_st) ** 2))) * math.tanh(wm / w_eps)
+    wg = wm * c[C_INV_N]
+    motor_torque = c[C_DM] * pl - c[C_BM] / leak * wm - friction
+    backlash = e[_BACKLASH] > 0.5
+    if backlash or e[_SHAFT] > 0.5:
+        # Flexible driveline: motor side Jm, load JL, a (possibly backlashed) spring in between.
+        slip = wg - s[WL]
+        shaft = shaft_torque(e, s[TH], slip)
+        ds[WM] = (motor_torque - shaft * c[C_INV_NETA]) * c[C_INV_JM]
+        ds[WL] = (shaft - _load_torque(c, e, s[WL])) * c[C_INV_JL]
+        ds[TH] = slip
+        torque = shaft
+    else:
+        load = _load_torque(c, e, wg)
+        ds[WM] = (motor_torque - load * c[C_INV_NETA]) * c[C_INV_JT]
+        ds[WL] = 0.0
+        ds[TH] = 0.0
+        torque = load + c[C_JL_N] * ds[WM]
+
+    # Eq. 8 sensors.
+    sensors[0] = (ql - cvx * pl) * M3S_TO_LPM
+    sensors[1] = wg
+    sensors[2] = torque
+    ds[YF] = 0.0
+    if e[_LOWPASS] > 0.5:
+        ds[YF] = (sensors[int(e[_LOWPASS + 1])] - s[YF]) / e[_LOWPASS + 2]
