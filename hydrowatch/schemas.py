@@ -1,0 +1,291 @@
+"""Arrow schemas of every hydrowatch message, built from the declarations in ``schemas/``.
+
+The JSON files ``schemas/<name>.v<version>.json`` at the repository root are the one source of
+truth (language-neutral, so a rig gateway in another language can read them); this module turns
+them into :class:`pyarrow.Schema` objects. Every field carries metadata ``unit`` and
+``description``; every schema carries ``hydrowatch.schema`` (its name) and
+``hydrowatch.schema_version``. Set ``HYDROWATCH_SCHEMAS`` to a folder to read the declarations from
+elsewhere (an installed wheel that does not ship the repository).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from functools import cache
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import pyarrow as pa
+
+from hydrowatch.errors import DataError
+
+SCHEMA_VERSION = 1
+"""Current version of every message schema (bumped together with the contract)."""
+
+NAME_KEY = b"hydrowatch.schema"
+VERSION_KEY = b"hydrowatch.schema_version"
+
+_FILE_NAME = re.compile(r"^(?P<name>[a-z_]+)\.v(?P<version>\d+)\.json$")
+_SCALAR_TYPES: dict[str, pa.DataType] = {
+    "float64": pa.float64(),
+    "float32": pa.float32(),
+    "int64": pa.int64(),
+    "int32": pa.int32(),
+    "bool": pa.bool_(),
+    "string": pa.string(),
+}
+
+
+class SchemaMismatchError(DataError):
+    """A message of another schema (or with no hydrowatch schema metadata) than the one expected."""
+
+
+class SchemaVersionError(DataError):
+    """A message of the expected schema but another version."""
+
+
+def schemas_dir() -> Path:
+    """Folder that holds the schema declarations.
+
+    ``$HYDROWATCH_SCHEMAS`` when set, else ``schemas/`` next to the ``hydrowatch`` package (a
+    repository checkout or an editable install).
+    """
+    override = os.environ.get("HYDROWATCH_SCHEMAS")
+    folder = Path(override) if override else Path(__file__).resolve().parent.parent / "schemas"
+    if not folder.is_dir():
+        raise DataError(
+            f"the schema folder must exist. Got {str(folder)!r}. Set HYDROWATCH_SCHEMAS to the "
+            "repository's schemas/ folder or install hydrowatch in editable mode (pip install -e .)."
+        )
+    return folder
+
+
+def _arrow_type(spec: Any, source: str) -> pa.DataType:
+    if isinstance(spec, str):
+        if spec not in _SCALAR_TYPES:
+            raise DataError(f"field type must be one of {sorted(_SCALAR_TYPES)}. Got {spec!r}.", source)
+        return _SCALAR_TYPES[spec]
+    if isinstance(spec, dict) and set(spec) == {"list"}:
+        return pa.list_(_arrow_type(spec["list"], source))
+    if isinstance(spec, dict) and set(spec) == {"struct"}:
+        return pa.struct([_arrow_field(f, source) for f in spec["struct"]])
+    raise DataError(f"field type must be a name, {{'list': T}} or {{'struct': [fields]}}. Got {spec!r}.", source)
+
+
+def _arrow_field(spec: dict[str, Any], source: str) -> pa.Field:
+    missing = {"name", "type", "unit", "nullable", "description"} - set(spec)
+    if missing:
+        raise DataError(f"field declaration must have keys {sorted(missing)}. Got {sorted(spec)}.", source)
+    metadata = {"unit": spec["unit"], "description": spec["description"]}
+    return pa.field(spec["name"], _arrow_type(spec["type"], source), nullable=bool(spec["nullable"]), metadata=metadata)
+
+
+def _load(path: Path) -> pa.Schema:
+    source = str(path)
+    try:
+        spec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"schema declaration must be readable JSON. Got: {exc}.", source) from None
+    match = _FILE_NAME.match(path.name)
+    if match is None or spec.get("name") != match["name"] or spec.get("version") != int(match["version"]):
+        raise DataError(
+            f"schema declaration name and version must match its file name. Got name={spec.get('name')!r}, "
+            f"version={spec.get('version')!r}.",
+            source,
+        )
+    fields = [_arrow_field(f, source) for f in spec["fields"]]
+    metadata = {
+        NAME_KEY: spec["name"].encode(),
+        VERSION_KEY: str(spec["version"]).encode(),
+        b"hydrowatch.description": spec.get("description", "").encode(),
+    }
+    return pa.schema(fields, metadata=metadata)
+
+
+@cache
+def _all_schemas() -> dict[tuple[str, int], pa.Schema]:
+    found: dict[tuple[str, int], pa.Schema] = {}
+    for path in sorted(schemas_dir().glob("*.json")):
+        match = _FILE_NAME.match(path.name)
+        if match is not None:
+            found[(match["name"], int(match["version"]))] = _load(path)
+    return found
+
+
+def schema_by_name(name: str, version: int | None = None) -> pa.Schema:
+    """The declared schema ``name`` at ``version`` (default: :data:`SCHEMA_VERSION`).
+
+    Raises
+    ------
+    DataError
+        When no declaration ``schemas/<name>.v<version>.json`` exists.
+    """
+    version = SCHEMA_VERSION if version is None else int(version)
+    schemas = _all_schemas()
+    if (name, version) not in schemas:
+        known = sorted(f"{n}.v{v}" for n, v in schemas)
+        raise DataError(f"schema must be one of {known}. Got {name}.v{version}.")
+    return schemas[(name, version)]
+
+
+def schema_name(schema: pa.Schema) -> str | None:
+    """Name in the schema's ``hydrowatch.schema`` metadata, or None when it has none."""
+    value = (schema.metadata or {}).get(NAME_KEY)
+    return value.decode() if value is not None else None
+
+
+def schema_version(schema: pa.Schema) -> int | None:
+    """Version in the schema's ``hydrowatch.schema_version`` metadata, or None when absent or not an integer."""
+    value = (schema.metadata or {}).get(VERSION_KEY)
+    try:
+        return int(value) if value is not None else None
+    except ValueError:
+        return None
+
+
+def units(schema: pa.Schema) -> dict[str, str]:
+    """Unit of every field that has one, e.g. ``{"t": "s", "flow": "L/min", ...}``."""
+    out = {}
+    for f in schema:
+        unit = (f.metadata or {}).get(b"unit", b"").decode()
+        if unit:
+            out[f.name] = unit
+    return out
+
+
+@cache
+def _wire_schema(name: str, version: int) -> pa.Schema:
+    declared = schema_by_name(name, version)
+    fields = [f.with_metadata({b"unit": (f.metadata or {}).get(b"unit", b"")}) for f in declared]
+    return pa.schema(fields, metadata={NAME_KEY: name.encode(), VERSION_KEY: str(version).encode()})
+
+
+def wire_schema(schema: pa.Schema) -> pa.Schema:
+    """``schema`` as sent in messages: field metadata ``unit`` only, schema metadata name and version.
+
+    Field descriptions stay in ``schemas/`` (they would add ~1.6 kB to every sensor chunk); build
+    messages against this schema. Nested fields keep their declared metadata.
+    """
+    name, version = schema_name(schema), schema_version(schema)
+    if name is None or version is None:
+        raise DataError(f"schema must carry hydrowatch name and version metadata. Got {schema.metadata}.")
+    return _wire_schema(name, version)
+
+
+def describe(schema: pa.Schema) -> str:
+    """One line per field: ``name type [unit] (optional) — description``."""
+    lines = [f"{schema_name(schema)} v{schema_version(schema)}"]
+    for f in schema:
+        meta = f.metadata or {}
+        unit = meta.get(b"unit", b"").decode()
+        optional = " (optional)" if f.nullable else ""
+        lines.append(
+            f"  {f.name} {f.type}{f' [{unit}]' if unit else ''}{optional} — {meta.get(b'description', b'').decode()}"
+        )
+    return "\n".join(lines)
+
+
+class _Spec(NamedTuple):
+    name: bytes
+    version: bytes
+    fields: dict[str, tuple[pa.DataType, bool]]
+    names: frozenset[str]
+
+
+_SPECS: dict[int, tuple[pa.Schema, _Spec]] = {}
+
+
+def _spec(schema: pa.Schema) -> _Spec:
+    """What :func:`validate` compares, cached per schema object (validation is on the hot path)."""
+    cached = _SPECS.get(id(schema))
+    if cached is None or cached[0] is not schema:
+        meta = schema.metadata or {}
+        fields = {f.name: (f.type, f.nullable) for f in schema}
+        spec = _Spec(meta.get(NAME_KEY, b""), meta.get(VERSION_KEY, b""), fields, frozenset(fields))
+        cached = (schema, spec)
+        _SPECS[id(schema)] = cached
+    return cached[1]
+
+
+def validate(
+    batch: pa.RecordBatch | pa.Table, schema: pa.Schema, source: str | None = None, *, require_metadata: bool = False
+) -> None:
+    """Check that ``batch`` is a valid message of ``schema``.
+
+    Every non-nullable field must be present, hold no nulls and have the declared type; nullable
+    fields may be absent; no undeclared field may appear. When the batch carries hydrowatch schema
+    metadata (it must with ``require_metadata``), its name and version must be the expected ones.
+
+    Raises
+    ------
+    SchemaMismatchError, SchemaVersionError
+        The batch says it is another schema (or nothing, with ``require_metadata``), or another
+        version of this one.
+    DataError
+        Naming ``source`` and the offending field.
+    """
+    spec = _spec(schema)
+    expected = spec.name.decode()
+    got_schema = batch.schema
+    meta = got_schema.metadata or {}
+    got_name = meta.get(NAME_KEY)
+    if got_name is None and require_metadata:
+        raise SchemaMismatchError(
+            f"message must carry schema metadata 'hydrowatch.schema'={expected!r}. Got none "
+            "(a message not built from hydrowatch.schemas).",
+            source,
+        )
+    if got_name is not None and got_name != spec.name:
+        raise SchemaMismatchError(f"message schema must be {expected!r}. Got {got_name.decode()!r}.", source)
+    if got_name is not None and meta.get(VERSION_KEY) != spec.version:
+        raise SchemaVersionError(
+            f"{expected} schema version must be {spec.version.decode()}. Got {schema_version(got_schema)}. "
+            "Upgrade the reader or the writer so that both speak the same version.",
+            source,
+        )
+    names = got_schema.names
+    got = dict(zip(names, got_schema.types))
+    if not spec.names.issuperset(got):
+        unknown = sorted(set(got) - spec.names)
+        raise DataError(f"{expected} fields must be among {schema.names}. Got unknown {unknown}.", source)
+    for name, (dtype, nullable) in spec.fields.items():
+        if name not in got:
+            if not nullable:
+                raise DataError(f"{expected} field '{name}' must be present. Got none.", source)
+            continue
+        if got[name] != dtype:
+            raise DataError(f"{expected} field '{name}' must have type {dtype}. Got {got[name]}.", source)
+        if not nullable:
+            nulls = batch.column(names.index(name)).null_count
+            if nulls:
+                raise DataError(f"{expected} field '{name}' must have no nulls. Got {nulls}.", source)
+
+
+SENSOR_CHUNK = schema_by_name("sensor_chunk")
+"""Chunk of consecutive samples (t, voltage, flow, speed, torque, optional channels and state)."""
+KL_WINDOW = schema_by_name("kl_window")
+"""Relative entropies of one window, one row per sensor × state."""
+HEALTH_VERDICT = schema_by_name("health_verdict")
+"""One verdict per window: state, probabilities, window bounds, model version."""
+STATUS = schema_by_name("status")
+"""Heartbeat of a service: status string and message counters."""
+
+__all__ = [
+    "HEALTH_VERDICT",
+    "KL_WINDOW",
+    "SCHEMA_VERSION",
+    "SENSOR_CHUNK",
+    "STATUS",
+    "SchemaMismatchError",
+    "SchemaVersionError",
+    "describe",
+    "schema_by_name",
+    "schema_name",
+    "schema_version",
+    "schemas_dir",
+    "units",
+    "validate",
+    "wire_schema",
+]

@@ -1,0 +1,200 @@
+"""Schemas and the Arrow message codec: round trip, and the three kinds of bad message."""
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from hydrowatch.errors import DataError
+from hydrowatch.io.codec import (
+    SchemaMismatchError,
+    SchemaVersionError,
+    UndecodableMessageError,
+    arrays_from_sensor_chunk,
+    decode_batch,
+    encode_batch,
+    sensor_chunk_from_arrays,
+)
+from hydrowatch.recording import UNITS
+from hydrowatch.schemas import (
+    HEALTH_VERDICT,
+    KL_WINDOW,
+    SCHEMA_VERSION,
+    SENSOR_CHUNK,
+    STATUS,
+    describe,
+    schema_by_name,
+    schemas_dir,
+    units,
+    validate,
+    wire_schema,
+)
+
+
+@pytest.fixture
+def chunk():
+    rng = np.random.default_rng(1)
+    t = 12.0 + np.arange(100) / 200.0
+    channels = {c: rng.normal(size=100) for c in ("voltage", "flow", "speed", "torque", "temperature")}
+    return t, channels
+
+
+def test_schemas_carry_name_version_units_and_descriptions():
+    for schema, name in (
+        (SENSOR_CHUNK, "sensor_chunk"),
+        (KL_WINDOW, "kl_window"),
+        (HEALTH_VERDICT, "health_verdict"),
+        (STATUS, "status"),
+    ):
+        assert schema.metadata[b"hydrowatch.schema"] == name.encode()
+        assert schema.metadata[b"hydrowatch.schema_version"] == str(SCHEMA_VERSION).encode()
+        assert all(f.metadata[b"description"] for f in schema)
+        assert schema_by_name(name) is schema
+    assert units(SENSOR_CHUNK) == UNITS  # the contract's units, one source of truth
+    assert units(KL_WINDOW)["relative_entropy"] == "nats"
+    assert HEALTH_VERDICT.field("probabilities").type == pa.list_(
+        pa.struct(
+            [pa.field("state", pa.string(), nullable=False), pa.field("probability", pa.float64(), nullable=False)]
+        )
+    )
+    assert "flow double [L/min]" in describe(SENSOR_CHUNK)
+
+
+def test_schema_files_are_plain_json_with_every_field_documented():
+    files = sorted(p.name for p in schemas_dir().glob("*.json"))
+    assert files == ["health_verdict.v1.json", "kl_window.v1.json", "sensor_chunk.v1.json", "status.v1.json"]
+    readme = (schemas_dir() / "README.md").read_text()
+    for name in files:
+        spec = json.loads((schemas_dir() / name).read_text())
+        for field in spec["fields"]:
+            assert f"`{field['name']}`" in readme, (name, field["name"])
+
+
+def test_unknown_schema_is_a_clear_error():
+    with pytest.raises(DataError, match=r"Got sensor_chunk.v9"):
+        schema_by_name("sensor_chunk", 9)
+
+
+def test_sensor_chunk_round_trip_keeps_values_units_and_version(chunk):
+    t, channels = chunk
+    batch = sensor_chunk_from_arrays(t, channels)
+    data = encode_batch(batch)
+    back = decode_batch(data, SENSOR_CHUNK, "test")
+    assert back.equals(batch)
+    assert back.schema.field("torque").metadata[b"unit"] == "N·m".encode()
+    assert back.schema.metadata[b"hydrowatch.schema_version"] == b"1"
+    t2, ch2 = arrays_from_sensor_chunk(back)
+    np.testing.assert_array_equal(t2, t)
+    assert sorted(ch2) == sorted(channels)
+    np.testing.assert_array_equal(ch2["flow"], channels["flow"])
+    # descriptions stay out of messages: 100 samples x 6 columns fit in under 6 kB
+    assert len(data) < 6000
+
+
+def test_labels_travel_as_strings(chunk):
+    t, channels = chunk
+    labels = np.array(["healthy"] * 50 + ["load_alert"] * 50, dtype=object)
+    batch = sensor_chunk_from_arrays(t, {**channels, "state": labels})
+    _, back = arrays_from_sensor_chunk(decode_batch(encode_batch(batch), SENSOR_CHUNK))
+    assert list(back["state"][48:52]) == ["healthy", "healthy", "load_alert", "load_alert"]
+
+
+def test_missing_required_channel_and_unknown_channel_are_rejected(chunk):
+    t, channels = chunk
+    del channels["torque"]
+    with pytest.raises(DataError, match="'torque' must be given"):
+        sensor_chunk_from_arrays(t, channels)
+    with pytest.raises(DataError, match=r"unknown \['pressure'\]"):
+        sensor_chunk_from_arrays(t, {**chunk[1], "pressure": t})
+
+
+def test_garbage_other_schema_and_other_version_are_three_distinct_errors(chunk):
+    data = encode_batch(sensor_chunk_from_arrays(*chunk))
+    with pytest.raises(UndecodableMessageError, match="key/x: message must be an Arrow IPC stream"):
+        decode_batch(b"\x00garbage" * 10, SENSOR_CHUNK, "key/x")
+    with pytest.raises(UndecodableMessageError):
+        decode_batch(data[: len(data) // 2], SENSOR_CHUNK, "key/x")  # truncated payload
+    with pytest.raises(SchemaMismatchError, match="must be 'kl_window'. Got 'sensor_chunk'"):
+        decode_batch(data, KL_WINDOW, "key/x")
+    foreign = encode_batch(pa.record_batch([pa.array([1.0])], names=["t"]))
+    with pytest.raises(SchemaMismatchError, match="must carry schema metadata"):
+        decode_batch(foreign, SENSOR_CHUNK, "key/x")
+    batch = sensor_chunk_from_arrays(*chunk)
+    v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"2"})
+    with pytest.raises(SchemaVersionError, match="sensor_chunk schema version must be 1. Got 2"):
+        decode_batch(encode_batch(v2), SENSOR_CHUNK, "key/x")
+    assert not issubclass(SchemaVersionError, SchemaMismatchError)
+
+
+def test_malformed_payload_names_the_field(chunk):
+    t, channels = chunk
+    batch = sensor_chunk_from_arrays(t, channels)
+    # right schema name and version, but 'flow' sent as strings
+    cols = [
+        pa.array(channels["flow"].astype(str)) if n == "flow" else c for n, c in zip(batch.schema.names, batch.columns)
+    ]
+    fields = [pa.field("flow", pa.string()) if f.name == "flow" else f for f in batch.schema]
+    bad = pa.RecordBatch.from_arrays(cols, schema=pa.schema(fields, metadata=batch.schema.metadata))
+    with pytest.raises(DataError, match="field 'flow' must have type double. Got string"):
+        decode_batch(encode_batch(bad), SENSOR_CHUNK, "key/x")
+    # nulls in a required field: Arrow does not enforce non-null, validate does
+    nullable = pa.schema([f.with_nullable(True) for f in batch.schema], metadata=batch.schema.metadata)
+    cols = [
+        pa.array([None] * 100, pa.float64()) if n == "speed" else c for n, c in zip(batch.schema.names, batch.columns)
+    ]
+    with pytest.raises(DataError, match="field 'speed' must have no nulls. Got 100"):
+        decode_batch(encode_batch(pa.RecordBatch.from_arrays(cols, schema=nullable)), SENSOR_CHUNK)
+
+
+def test_other_messages_validate_and_round_trip():
+    verdict = pa.RecordBatch.from_pylist(
+        [
+            {
+                "window_start": 10.0,
+                "window_end": 20.0,
+                "state": "pump_leak_alert",
+                "probability": 0.9,
+                "probabilities": [
+                    {"state": "healthy", "probability": 0.1},
+                    {"state": "pump_leak_alert", "probability": 0.9},
+                ],
+                "reason": None,
+                "model_version": "3",
+            }
+        ],
+        schema=wire_schema(HEALTH_VERDICT),
+    )
+    back = decode_batch(encode_batch(verdict), HEALTH_VERDICT)
+    assert back.to_pylist()[0]["probabilities"][1]["probability"] == 0.9
+    status = pa.RecordBatch.from_pylist(
+        [
+            {
+                "service": "scorer",
+                "machine": None,
+                "time": 1.7e9,
+                "status": "running",
+                "messages_in": 5,
+                "messages_out": 4,
+                "messages_dropped": 0,
+                "messages_undecodable": 1,
+            }
+        ],
+        schema=STATUS,
+    )
+    validate(status, STATUS)
+    kl = pa.RecordBatch.from_pylist(
+        [
+            {
+                "window_start": 0.0,
+                "window_end": 10.0,
+                "sensor": "flow",
+                "state": "healthy",
+                "relative_entropy": 0.02,
+                "model_version": "3",
+            }
+        ],
+        schema=KL_WINDOW,
+    )
+    with pytest.raises(DataError, match="must be 'status'"):
+        validate(kl, STATUS)
