@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 from functools import cache
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -50,10 +51,13 @@ def schemas_dir() -> Path:
     """Folder that holds the schema declarations.
 
     ``$HYDROWATCH_SCHEMAS`` when set, else ``schemas/`` next to the ``hydrowatch`` package (a
-    repository checkout or an editable install).
+    repository checkout or an editable install), else ``<prefix>/share/hydrowatch/schemas`` where a
+    wheel installs them (pyproject's data-files).
     """
     override = os.environ.get("HYDROWATCH_SCHEMAS")
     folder = Path(override) if override else Path(__file__).resolve().parent.parent / "schemas"
+    if not override and not folder.is_dir():
+        folder = Path(sys.prefix) / "share" / "hydrowatch" / "schemas"
     if not folder.is_dir():
         raise DataError(
             f"the schema folder must exist. Got {str(folder)!r}. Set HYDROWATCH_SCHEMAS to the "
