@@ -1,0 +1,65 @@
+"""Key expressions of the bus (contract: ``hydro/<fleet>/<machine>/<topic>``).
+
+``<fleet>`` and ``<machine>`` are free-form ids without ``/``; a zenoh wildcard (``*`` a whole
+chunk, ``**`` any number of chunks) may stand for either in a subscription.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from hydrowatch.errors import DataError, ParameterError
+
+PREFIX = "hydro"
+TOPICS: tuple[str, ...] = ("sensors", "kl", "health", "status")
+"""Topics of the contract, the last chunk of every key."""
+
+_FORBIDDEN = set("/*$?#@ ")
+
+
+class Key(NamedTuple):
+    """A parsed key ``hydro/<fleet>/<machine>/<topic>``."""
+
+    fleet: str
+    machine: str
+    topic: str
+
+    def __str__(self) -> str:
+        return f"{PREFIX}/{self.fleet}/{self.machine}/{self.topic}"
+
+
+def _check_id(what: str, value: str) -> str:
+    if not value or _FORBIDDEN.intersection(value):
+        raise ParameterError(
+            f"{what} must be a non-empty id without any of '/*$?#@' or spaces. Got {value!r}. "
+            "Use letters, digits, '-', '_' or '.'."
+        )
+    return value
+
+
+def _check_topic(topic: str) -> str:
+    if topic not in TOPICS:
+        raise ParameterError(f"topic must be one of {TOPICS}. Got {topic!r}.")
+    return topic
+
+
+def key(fleet: str, machine: str, topic: str) -> str:
+    """The concrete key of one machine and topic, e.g. ``key("f1", "m007", "sensors")``."""
+    return str(Key(_check_id("fleet", fleet), _check_id("machine", machine), _check_topic(topic)))
+
+
+def key_expr(fleet: str = "*", machine: str = "*", topic: str = "sensors") -> str:
+    """A subscription key expression; ``*`` for fleet or machine matches every id."""
+    fleet = fleet if fleet == "*" else _check_id("fleet", fleet)
+    machine = machine if machine == "*" else _check_id("machine", machine)
+    return f"{PREFIX}/{fleet}/{machine}/{topic if topic == '*' else _check_topic(topic)}"
+
+
+def parse_key(text: str) -> Key:
+    """Split a concrete key into fleet, machine and topic; DataError when it is not a contract key."""
+    parts = str(text).split("/")
+    if len(parts) != 4 or parts[0] != PREFIX or not parts[1] or not parts[2] or parts[3] not in TOPICS:
+        raise DataError(
+            f"key must look like '{PREFIX}/<fleet>/<machine>/<topic>' with topic in {TOPICS}. Got {text!r}."
+        )
+    return Key(parts[1], parts[2], parts[3])

@@ -1,0 +1,243 @@
+"""Arrow record batches over zenoh: a publisher per key and a decoding, shard-aware subscriber.
+
+Every payload is one Arrow IPC message made by :func:`hydrowatch.io.encode_batch` (its schema
+metadata carries the schema name and version); the attachment holds the publish wall-clock time
+(int64 little-endian, ns since the Unix epoch) so receivers can measure latency. A subscriber
+that gets a payload it cannot decode, or one of another schema or version, counts it, logs it
+once per key and goes on (contract, "Bus").
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import struct
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import pyarrow as pa
+import zenoh
+
+from hydrowatch.bus.keys import Key, parse_key
+from hydrowatch.bus.shard import Shard
+from hydrowatch.errors import DataError
+from hydrowatch.io.codec import decode_batch, encode_batch
+from hydrowatch.io.mcap_io import TOPIC_KINDS
+from hydrowatch.log import event, get_logger
+from hydrowatch.schemas import schema_by_name
+
+log = get_logger(__name__)
+_STAMP = struct.Struct("<q")
+
+
+class Publisher:
+    """Publishes record batches on contract keys, one declared zenoh publisher per key.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session (the caller closes it).
+    congestion_control : zenoh.CongestionControl
+        ``BLOCK`` (default) never drops: use it for anything recorded.
+    express : bool
+        Send each message at once instead of batching small ones (lower latency, fewer msgs/s).
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        *,
+        congestion_control: zenoh.CongestionControl = zenoh.CongestionControl.BLOCK,
+        express: bool = False,
+    ) -> None:
+        self.session = session
+        self.congestion_control = congestion_control
+        self.express = express
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self.messages_out = 0
+
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key, congestion_control=self.congestion_control, express=self.express
+            )
+            self._publishers[key] = pub
+        return pub
+
+    def wait_for_subscribers(self, keys: Sequence[str], timeout: float) -> bool:
+        """Declare the publishers of ``keys`` and wait until each has a matching subscriber.
+
+        Zenoh delivers only to subscribers it already knows of, so a publisher whose first
+        messages must not be lost waits here. Returns False when ``timeout`` seconds pass first.
+        """
+        deadline = time.monotonic() + timeout
+        publishers = [self._publisher(k) for k in keys]
+        while not all(p.matching_status for p in publishers):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def put_payload(self, key: str, payload: bytes, publish_time_ns: int | None = None) -> None:
+        """Publish already-encoded bytes on ``key`` (replay uses this to avoid re-encoding)."""
+        stamp = _STAMP.pack(time.time_ns() if publish_time_ns is None else publish_time_ns)
+        self._publisher(key).put(payload, attachment=stamp)
+        self.messages_out += 1
+
+    def put(self, key: str, batch: pa.RecordBatch) -> None:
+        """Encode ``batch`` (its schema metadata names schema and version) and publish it on ``key``."""
+        self.put_payload(key, encode_batch(batch))
+
+    def close(self) -> None:
+        """Undeclare every publisher (safe to call twice)."""
+        for pub in self._publishers.values():
+            pub.undeclare()
+        self._publishers.clear()
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass
+class Message:
+    """One received message.
+
+    Attributes
+    ----------
+    key : Key
+        Fleet, machine and topic of the key it came on.
+    batch : pyarrow.RecordBatch
+        The decoded, validated record batch.
+    payload : bytes
+        The bytes as received (the recorder stores them unchanged).
+    receive_time_ns, publish_time_ns : int
+        Wall-clock receive and publish times, ns since the Unix epoch (publish time 0 when the
+        publisher sent no attachment).
+    """
+
+    key: Key
+    batch: pa.RecordBatch
+    payload: bytes
+    receive_time_ns: int
+    publish_time_ns: int
+
+
+class Subscriber:
+    """Receives record batches of one schema on one or more key expressions.
+
+    Samples arrive on zenoh's threads and wait in a bounded queue; when it is full the zenoh
+    thread waits, which (with ``BLOCK`` publishers) slows the publishers down instead of losing
+    data. Decoding happens in :meth:`recv`, on the caller's thread.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    key_exprs : str or sequence of str
+        E.g. ``"hydro/*/*/sensors"`` or ``["hydro/f1/**"]``.
+    schema : pyarrow.Schema or None
+        Expected schema (from :mod:`hydrowatch.schemas`); others are counted as undecodable.
+        None: the schema of each key's topic (``sensors`` → ``sensor_chunk``, ...).
+    shard : Shard
+        Only machines of this shard are kept; the others are counted in ``outside_shard``.
+    capacity : int
+        Messages the queue holds before the zenoh thread waits.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key_exprs: str | Sequence[str],
+        schema: pa.Schema | None = None,
+        *,
+        shard: Shard | None = None,
+        capacity: int = 100_000,
+    ) -> None:
+        self.schema = schema
+        self.shard = shard or Shard()
+        self.key_exprs = [key_exprs] if isinstance(key_exprs, str) else list(key_exprs)
+        self.received = 0
+        self.outside_shard = 0
+        self.undecodable: Counter[str] = Counter()
+        self._queue: queue.Queue[tuple[str, bytes, int, int]] = queue.Queue(maxsize=capacity)
+        self._closed = threading.Event()
+        self._subscribers = [session.declare_subscriber(k, self._on_sample) for k in self.key_exprs]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if self.shard.count > 1:
+            parts = key.split("/")
+            if len(parts) > 2 and not self.shard.includes(parts[2]):
+                self.outside_shard += 1
+                return
+        attachment = sample.attachment
+        stamp = attachment.to_bytes() if attachment is not None else b""
+        published = _STAMP.unpack(stamp)[0] if len(stamp) == _STAMP.size else 0
+        item = (key, sample.payload.to_bytes(), time.time_ns(), published)
+        while not self._closed.is_set():
+            try:
+                self._queue.put(item, timeout=0.05)
+                return
+            except queue.Full:
+                continue
+
+    def _decode(self, item: tuple[str, bytes, int, int]) -> Message | None:
+        key, payload, received, published = item
+        self.received += 1
+        try:
+            parsed = parse_key(key)
+            schema = self.schema if self.schema is not None else schema_by_name(TOPIC_KINDS[parsed.topic])
+            return Message(parsed, decode_batch(payload, schema, source=key), payload, received, published)
+        except DataError as exc:
+            self.undecodable[key] += 1
+            if self.undecodable[key] == 1:
+                event(log, "undecodable message skipped", logging.WARNING, key=key, reason=exc)
+            return None
+
+    def recv(self, timeout: float | None = None) -> Message | None:
+        """The next decodable message, or None when none came within ``timeout`` seconds."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                item = self._queue.get(timeout=remaining)
+            except queue.Empty:
+                return None
+            message = self._decode(item)
+            if message is not None:
+                return message
+
+    def drain(self) -> Iterator[Message]:
+        """Every message already queued, without waiting (after :meth:`close`, to flush)."""
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            message = self._decode(item)
+            if message is not None:
+                yield message
+
+    @property
+    def undecodable_total(self) -> int:
+        """Undecodable messages over every key."""
+        return sum(self.undecodable.values())
+
+    def close(self) -> None:
+        """Stop receiving (undeclare); queued messages stay available to :meth:`drain`."""
+        self._closed.set()
+        for sub in self._subscribers:
+            sub.undeclare()
+        self._subscribers = []
+
+    def __enter__(self) -> Subscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

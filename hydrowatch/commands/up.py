@@ -1,0 +1,62 @@
+"""``hydrowatch up``: start the services as local processes on one loopback bus; stop them together.
+
+The ``up`` process itself hosts the bus: a zenoh router on ``tcp/127.0.0.1:<port>`` that lives as
+long as the services, which join it as clients (the same layout as compose.yaml, on loopback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from pathlib import Path
+
+from hydrowatch.bus.launch import ServiceSpec, supervise
+from hydrowatch.bus.service import command_run
+from hydrowatch.bus.session import DEFAULT_PORT, BusSettings, free_port, open_session
+from hydrowatch.errors import ParameterError
+
+NAME = "up"
+HELP = "start plant, recorder (and other services) as local processes on one loopback bus; Ctrl-C stops all"
+KNOWN = ("plant", "record", "trainer", "scorer", "watch")
+MODULES = {"plant": "services.plant", "record": "services.recorder"}
+"""Services started as ``python -m services.<name>`` (imports only what they need)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--services", default="plant,record",
+                        help=f"comma-separated services among {','.join(KNOWN)} (default plant,record)")
+    parser.add_argument("--fleet", default="fleet1", help="fleet id (default fleet1)")
+    parser.add_argument("--machines", type=int, default=10, help="simulated machines (default 10)")
+    parser.add_argument("--states", default="healthy", help="health states given to the machines in turn")
+    parser.add_argument("--speed", default="1", help="plant speed: simulated s per wall-clock s, or inf")
+    parser.add_argument("--seed", type=int, default=0, help="plant seed (default 0)")
+    parser.add_argument("--out", type=Path, default=Path("recordings"), help="recorder output folder")
+    parser.add_argument("--seconds", type=float, default=None, help="stop everything after this many seconds")
+    parser.add_argument("--bus-port", type=int, default=DEFAULT_PORT,
+                        help=f"loopback rendezvous port of the bus (default {DEFAULT_PORT}; 0: any free port)")
+
+
+def service_specs(args: argparse.Namespace, port: int) -> list[ServiceSpec]:
+    """What ``up`` starts, each a client of the router on loopback ``port``."""
+    names = [s.strip() for s in args.services.split(",") if s.strip()]
+    unknown = sorted(set(names) - set(KNOWN))
+    if unknown or not names:
+        raise ParameterError(f"--services must be among {','.join(KNOWN)}. Got {args.services!r}.")
+    bus = ("--connect", f"tcp/127.0.0.1:{port}")
+    per_service = {
+        "plant": ("--fleet", args.fleet, "--machines", str(args.machines), "--states", args.states,
+                  "--speed", str(args.speed), "--seed", str(args.seed), "--wait-subscribers", "10"),
+        "record": ("--fleet", args.fleet, "--out", str(args.out)),
+    }
+    verbose = getattr(args, "verbose", 0)
+    return [ServiceSpec(name, name, per_service.get(name, ()) + bus, verbose, MODULES.get(name)) for name in names]
+
+
+def _up(args: argparse.Namespace, stop: threading.Event) -> int:
+    port = args.bus_port or free_port()
+    specs = service_specs(args, port)
+    with open_session(BusSettings(mode="router", port=port)):
+        return supervise(specs, stop, seconds=args.seconds)
+
+
+run = command_run(_up)

@@ -1,0 +1,5 @@
+import sys
+
+from services.plant import main
+
+sys.exit(main())

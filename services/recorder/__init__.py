@@ -1,0 +1,100 @@
+"""Recorder service: subscribes to key expressions and writes per-machine MCAP recordings.
+
+Every received payload is stored unchanged (Arrow IPC, one MCAP channel per key) after it has
+decoded against its topic's schema; undecodable messages are counted and skipped. Files rotate
+by size or time; chunks close every ``--chunk-size`` bytes or ``--flush`` seconds, so a
+``kill -9`` loses at most that; SIGTERM/SIGINT drains the queue, finishes every file and exits.
+``--shard i/n`` records only that shard of the fleet.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from hydrowatch.bus import Shard, StatusReporter, Subscriber, add_bus_arguments, key_expr, open_session, parse_shard
+from hydrowatch.bus.service import service_main
+from hydrowatch.bus.session import settings_from_args
+from hydrowatch.errors import ParameterError
+from hydrowatch.log import event, get_logger
+from services.recorder.files import RecordingFiles
+
+NAME = "record"
+HELP = "record key expressions of the bus into per-machine MCAP files, rotated by size or time"
+QUIET_S = 0.2
+"""On stop, the recorder keeps receiving until no message came for this long (at most ``--drain`` s), s."""
+log = get_logger("services.recorder")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("recordings"), help="folder of the recordings")
+    parser.add_argument("--keys", action="append", default=[], metavar="KEYEXPR",
+                        help=f"key expression to record, repeatable (default {key_expr()})")
+    parser.add_argument("--fleet", default="*", help="fleet to record when --keys is not given (default: all)")
+    parser.add_argument("--shard", type=parse_shard, default=Shard(), help="record only shard i/n of the machines")
+    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    parser.add_argument("--chunk-size", type=int, default=64 * 1024, help="bytes per MCAP chunk (default 65536)")
+    parser.add_argument("--flush", type=float, default=1.0,
+                        help="close a chunk after this many seconds at most: the most a kill -9 loses (default 1)")
+    parser.add_argument("--rotate-mb", type=float, default=256.0, help="start a new file past this size, MB")
+    parser.add_argument("--rotate-s", type=float, default=3600.0, help="start a new file after this many seconds")
+    parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
+    parser.add_argument("--drain", type=float, default=20.0,
+                        help="on stop, keep recording what is still arriving for up to this many seconds (default 20)")
+    add_bus_arguments(parser)
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Record until ``stop`` (or ``--seconds``), then drain and finish every file; returns 0."""
+    for name in ("chunk_size", "flush", "rotate_mb", "rotate_s"):
+        if not getattr(args, name) > 0:
+            raise ParameterError(f"--{name.replace('_', '-')} must be > 0. Got {getattr(args, name)}.")
+    keys = args.keys or [key_expr(args.fleet)]
+    files = RecordingFiles(
+        args.out, chunk_size=args.chunk_size, compression=args.compression, flush_s=args.flush,
+        rotate_bytes=int(args.rotate_mb * 1024 * 1024), rotate_s=args.rotate_s,
+        extra_metadata={"recorder_keys": keys, "shard": str(args.shard)},
+    )
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    fleet = args.fleet if args.fleet != "*" else "all"
+    with open_session(settings_from_args(args)) as session:
+        subscriber = Subscriber(session, keys, shard=args.shard)
+        reporter = StatusReporter(session, fleet, NAME, lambda: {
+            "messages_in": subscriber.received, "messages_out": files.messages,
+            "messages_undecodable": subscriber.undecodable_total,
+        })
+        try:
+            reporter.start()
+            reporter.status = "running"
+            event(log, "recorder started", keys=",".join(keys), out=args.out, shard=str(args.shard))
+            next_tick = time.monotonic() + args.flush
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                message = subscriber.recv(timeout=min(0.1, args.flush))
+                if message is not None:
+                    files.write(message)
+                if time.monotonic() >= next_tick:
+                    files.tick()
+                    next_tick = time.monotonic() + args.flush
+            reporter.status = "draining"
+            # what is still on its way arrives within a moment: keep receiving until the bus is quiet
+            give_up = time.monotonic() + args.drain
+            while time.monotonic() < give_up and (message := subscriber.recv(timeout=QUIET_S)) is not None:
+                files.write(message)
+            subscriber.close()
+            for message in subscriber.drain():
+                files.write(message)
+        finally:
+            subscriber.close()
+            files.close()
+            reporter.stop()
+    event(log, "recorder stopped", messages=files.messages, files=len(files.files_written),
+          undecodable=subscriber.undecodable_total, outside_shard=subscriber.outside_shard)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.recorder``."""
+    return service_main("recorder", HELP, add_arguments, run, argv)

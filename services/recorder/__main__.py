@@ -1,0 +1,5 @@
+import sys
+
+from services.recorder import main
+
+sys.exit(main())

@@ -1,0 +1,5 @@
+import sys
+
+from services.replay import main
+
+sys.exit(main())

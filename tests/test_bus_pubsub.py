@@ -1,0 +1,106 @@
+"""Arrow publish/subscribe across processes over loopback: order, decode errors, status."""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+
+from hydrowatch.bus import BusSettings, StatusReporter, Subscriber, alive, free_port, key_expr, open_session
+from hydrowatch.io.codec import arrays_from_sensor_chunk
+
+PUBLISHER = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from hydrowatch.bus import BusSettings, Publisher, key, open_session, status_batch
+    from hydrowatch.io.codec import sensor_chunk_from_arrays
+
+    def chunk(i):
+        t = (np.arange(20) + 20 * i) / 200.0
+        return sensor_chunk_from_arrays(t, {c: np.sin(t) for c in ("voltage", "flow", "speed", "torque")})
+
+    good, garbage, version, other = (key("t1", m, "sensors") for m in ("good", "garbage", "v2", "other"))
+    with open_session(BusSettings(port=int(sys.argv[1]))) as session:
+        pub = Publisher(session)
+        try:
+            assert pub.wait_for_subscribers([good, garbage, version, other], 30)
+            for i in range(30):
+                pub.put(good, chunk(i))
+                if i in (10, 11):
+                    pub.put_payload(garbage, b"not arrow at all" * i)
+                if i in (20, 21):
+                    b = chunk(i)
+                    v2 = {**b.schema.metadata, b"hydrowatch.schema_version": b"2"}
+                    pub.put(version, b.replace_schema_metadata(v2))
+                if i == 25:
+                    pub.put(other, status_batch("plant", None, "running", {}))
+        finally:
+            pub.close()
+""")
+
+
+class _Count(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+def test_undecodable_messages_are_counted_logged_once_and_skipped() -> None:
+    port = free_port()
+    counter = _Count()
+    logger = logging.getLogger("hydrowatch.bus.pubsub")
+    logger.addHandler(counter)
+    try:
+        with open_session(BusSettings(port=port)) as session, Subscriber(session, key_expr("t1")) as sub:
+            proc = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(port)])
+            try:
+                messages = []
+                deadline = time.monotonic() + 60
+                while len(messages) < 30 and time.monotonic() < deadline:
+                    message = sub.recv(timeout=1.0)
+                    if message is not None:
+                        messages.append(message)
+                assert proc.wait(timeout=60) == 0
+                while (extra := sub.recv(timeout=0.3)) is not None:
+                    messages.append(extra)
+            finally:
+                proc.kill()
+                proc.wait()
+    finally:
+        logger.removeHandler(counter)
+    assert len(messages) == 30
+    assert {m.key.machine for m in messages} == {"good"}
+    t = np.concatenate([arrays_from_sensor_chunk(m.batch)[0] for m in messages])
+    np.testing.assert_allclose(np.diff(t), 1 / 200.0)  # in order, none lost, none twice
+    assert t[0] == 0.0 and t.size == 600
+    assert sub.undecodable == {"hydro/t1/garbage/sensors": 2, "hydro/t1/v2/sensors": 2, "hydro/t1/other/sensors": 1}
+    assert sub.received == 35
+    logged = sorted(r.fields["key"] for r in counter.records)  # type: ignore[attr-defined]
+    assert logged == ["hydro/t1/garbage/sensors", "hydro/t1/other/sensors", "hydro/t1/v2/sensors"]
+    assert all(m.receive_time_ns >= m.publish_time_ns > 0 for m in messages)
+
+
+def test_status_reporter_liveliness_and_heartbeat() -> None:
+    settings = BusSettings(port=free_port())
+    with open_session(settings) as watcher, open_session(settings) as service:
+        with Subscriber(watcher, "hydro/f1/*/status") as beats:
+            time.sleep(0.3)
+            reporter = StatusReporter(service, "f1", "plant", lambda: {"messages_out": 7}, machines=["m1", "m2"],
+                                      interval=0.1)
+            with reporter:
+                time.sleep(0.5)
+                tokens = alive(watcher, "hydro/f1/*/status")
+            time.sleep(0.5)  # the undeclarations travel to the watcher
+            after = alive(watcher, "hydro/f1/*/status")
+            rows = [m.batch.to_pylist()[0] for m in beats.drain()]
+    assert tokens == sorted(["hydro/f1/m1/status", "hydro/f1/m2/status", f"hydro/f1/{reporter.id}/status"])
+    assert after == []
+    assert len(rows) >= 3 and rows[-1]["status"] == "stopped" and rows[0]["status"] == "starting"
+    assert {r["messages_out"] for r in rows} == {7} and {r["service"] for r in rows} == {"plant"}
