@@ -1,0 +1,225 @@
+"""Accuracy of health verdicts when the command differs from the identification experiment (issue 5).
+
+Approaches (all trained on one filtered-noise 0–4 V recording per state, as in the study):
+
+- ``study``: a healthy reference model per sensor (a linear ARX one-step predictor fitted by
+  least squares, standing in for the study's NARX, which costs minutes to train) + Gaussian base
+  distributions + relative entropies (Eq. 5.3) + the study's classifier (section 6.5);
+- ``conditioned``: the same with base distributions conditioned on the operating point (one set
+  per command level bin, the window's mean command picks the bin);
+- ``parity-mlp``: hydrowatch.condition parity scores + the study's classifier;
+- ``parity``: hydrowatch.condition parity scores + the nearest-physics rule (the default).
+
+Test conditions: other seed (like training), another operating day (leakages +15 %, load +3 %),
+a working duty cycle (holds, ramps, steps), slow noise (pole 0.98), a narrow range (1–3 V),
+another range (1–4 V), severities spread in their bands, oil 10 °C warmer (thermal_drift), the
+open set, and sensor subsets. Accuracy = share of windows whose verdict is the true state
+(``unknown`` counts as wrong, except in the open-set row where it is the right answer).
+
+Run: ``python benchmarks/bench_command_invariance.py [--train-seconds 300] [--test-seconds 150]
+[--quick]``. Timings are taken on a shared 2-core machine (pessimistic).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from hydrowatch.condition import ConditionFeatures, ConditionModel
+from hydrowatch.health.classifier import HealthClassifier
+from hydrowatch.health.features import RelativeEntropyFeatures
+from hydrowatch.plant import PlantParameters, PlantSimulator
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
+from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
+
+CHANNELS = ("voltage", "flow", "speed", "torque")
+W = 1000
+
+
+def simulate(params: list[PlantParameters], labels: list[str], u: np.ndarray, seed: int,
+             effects: dict | None = None) -> dict[str, np.ndarray]:
+    """Raw windows per label, (n, W, 4); machines sharing a label are stacked."""
+    sim = PlantSimulator(params, effects, seed=seed)
+    sim.settle(float(u[0]))
+    out = sim.step(np.broadcast_to(u, (len(params), u.size)))
+    n = u.size // W * W
+    data: dict[str, list[np.ndarray]] = {}
+    for i, label in enumerate(labels):
+        data.setdefault(label, []).append(np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1))
+    return {k: np.concatenate(v) for k, v in data.items()}
+
+
+class StudyMethod:
+    """Reference model (ARX per sensor) + base distributions (optionally per command bin) + classifier."""
+
+    def __init__(self, bins: int = 1, order: int = 4) -> None:
+        self.bins, self.order = bins, order
+
+    def _regressors(self, w: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
+        k = self.order
+        u, y = w[:, :, 0], w[:, :, c]
+        cols = [u[:, k - j:-j] for j in range(1, k + 1)] + [y[:, k - j:-j] for j in range(1, k + 1)]
+        phi = np.stack(cols + [np.ones_like(cols[0])], axis=-1)
+        return phi, y[:, k:]
+
+    def errors(self, w: np.ndarray) -> np.ndarray:
+        """One-step prediction errors (Eq. 5.1) per sensor, (n, W − order, 3)."""
+        out = []
+        for c in (1, 2, 3):
+            phi, y = self._regressors(w, c)
+            out.append(y - phi @ self.theta_[c])
+        return np.stack(out, axis=-1)
+
+    def _bin(self, w: np.ndarray) -> np.ndarray:
+        return np.clip((w[:, :, 0].mean(axis=1) / 4.0 * self.bins).astype(int), 0, self.bins - 1)
+
+    def fit(self, train: dict[str, np.ndarray]) -> StudyMethod:
+        healthy = train["healthy"]
+        ref = healthy[: max(1, len(healthy) // 5)]
+        self.theta_ = {}
+        for c in (1, 2, 3):
+            phi, y = self._regressors(ref, c)
+            self.theta_[c] = np.linalg.lstsq(phi.reshape(-1, phi.shape[-1]), y.reshape(-1), rcond=None)[0]
+        self.states_ = list(train)
+        base: dict[int, dict[str, np.ndarray]] = {b: {} for b in range(self.bins)}
+        clf_windows: dict[str, np.ndarray] = {}
+        for s, w in train.items():
+            half = len(w) // 2
+            e, bins = self.errors(w[:half]), self._bin(w[:half])
+            for b in range(self.bins):
+                sel = e[bins == b] if np.any(bins == b) else e
+                base[b][s] = sel.reshape(-1, 3)
+            clf_windows[s] = w[half:]
+        self.features_ = {b: RelativeEntropyFeatures(window=W - self.order).fit(base[b]) for b in range(self.bins)}
+        X, y = self._features_of(clf_windows)
+        self.clf_ = HealthClassifier().fit(X, y, classes=self.states_)
+        return self
+
+    def _features(self, w: np.ndarray) -> np.ndarray:
+        e, bins = self.errors(w), self._bin(w)
+        out = np.empty((len(w), 3 * len(self.states_)))
+        for b in range(self.bins):
+            sel = bins == b
+            if np.any(sel):
+                out[sel] = np.stack([self.features_[b].transform(row)[0] for row in e[sel]])
+        return out
+
+    def _features_of(self, data: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        X = np.concatenate([self._features(data[s]) for s in data])
+        return X, np.repeat(list(data), [len(v) for v in data.values()])
+
+    def predict(self, w: np.ndarray) -> np.ndarray:
+        return self.clf_.predict(self._features(w))
+
+
+def approaches(train: dict[str, np.ndarray], sensors: tuple[str, ...] = ("flow", "speed", "torque"),
+               only_parity: bool = False) -> dict[str, object]:
+    models: dict[str, object] = {}
+    t = time.perf_counter()
+    models["parity"] = ConditionModel(features=ConditionFeatures(sensors=sensors)).fit(train)
+    fit_s = time.perf_counter() - t
+    if not only_parity:
+        models["parity-mlp"] = ConditionModel(classifier=HealthClassifier()).fit(train)
+        models["study"] = StudyMethod(bins=1).fit(train)
+        models["conditioned"] = StudyMethod(bins=4).fit(train)
+    print(f"  parity model fit: {fit_s:.1f} s")
+    return models
+
+
+def accuracy(model: object, data: dict[str, np.ndarray], truth: str | None = None) -> float:
+    hits = total = 0
+    for state, w in data.items():
+        pred = model.predict(w)  # type: ignore[attr-defined]
+        hits += int(np.sum(pred == (truth or state)))
+        total += len(w)
+    return hits / max(total, 1)
+
+
+def run(states: tuple[str, ...], train_s: float, test_s: float, quick: bool) -> None:
+    print(f"\n=== {len(states)} states: train {train_s:.0f} s/state, test {test_s:.0f} s/state ===")
+    nominal = [state_parameters(s) for s in states]
+    labels = list(states)
+    train = simulate(nominal, labels, filtered_noise(train_s, (0, 4), seed=1), seed=11)
+    models = approaches(train)
+    other_day = [p.replace(Cp=p.Cp * 1.15, Ctm=p.Ctm * 1.15, Cvl=p.Cvl * 1.15, TL=p.TL * 1.03) for p in nominal]
+    rng = np.random.default_rng(5)
+    spread_labels = labels * 3
+    spread = [random_state_parameters(s, rng)[0] for s in spread_labels]
+    warm = {"thermal_drift": {"T_start": 50.0, "T_end": 50.0}}
+    conditions = {
+        "like training (other seed)": (nominal, labels, filtered_noise(test_s, (0, 4), seed=2), None),
+        "other operating day": (other_day, labels, filtered_noise(test_s, (0, 4), seed=3), None),
+        "duty cycle 0-4 V": (nominal, labels, duty_cycle(2 * test_s, (0, 4), seed=4), None),
+        "slow noise (pole 0.98)": (nominal, labels, filtered_noise(test_s, (0, 4), seed=5, pole=0.98), None),
+        "narrow range 1-3 V": (nominal, labels, filtered_noise(test_s, (1, 3), seed=6), None),
+        "other range 1-4 V": (nominal, labels, filtered_noise(test_s, (1, 4), seed=7), None),
+        "severities spread in bands": (spread, spread_labels, filtered_noise(test_s / 3, (0, 4), seed=8), None),
+        "oil +10 C, noise": (nominal, labels, filtered_noise(test_s, (0, 4), seed=9), warm),
+        "oil +10 C, duty cycle": (nominal, labels, duty_cycle(2 * test_s, (0, 4), seed=10), warm),
+    }
+    names = list(models)
+    print(f"  {'condition':30s}" + "".join(f"{n:>13s}" for n in names))
+    for name, (params, labs, u, effects) in conditions.items():
+        if quick and name.startswith(("slow", "other range")):
+            continue
+        data = simulate(params, labs, u, seed=hash(name) % 10_000, effects=effects)
+        print(f"  {name:30s}" + "".join(f"{100 * accuracy(models[n], data):12.1f}%" for n in names), flush=True)
+    open_set(states, train, test_s)
+    subsets(states, train, test_s)
+    timing(models["parity"], train)
+
+
+def open_set(states: tuple[str, ...], train: dict[str, np.ndarray], test_s: float) -> None:
+    """Leave each fault out of training in turn; its windows should read unknown."""
+    faults = sorted({s.rsplit("_", 1)[0] for s in states if s != "healthy"})
+    for left_out in faults[:3]:
+        known = {s: w for s, w in train.items() if not s.startswith(left_out)}
+        model = ConditionModel().fit(known)
+        unseen = [s for s in states if s.startswith(left_out)]
+        u = filtered_noise(test_s, (0, 4), seed=12)
+        data = simulate([state_parameters(s) for s in unseen], unseen, u, seed=13)
+        held = simulate([state_parameters(s) for s in known], list(known), u, seed=14)
+        dc = simulate([state_parameters(s) for s in unseen], unseen, duty_cycle(2 * test_s, seed=15), seed=16)
+        rejected = np.mean(np.concatenate([model.predict(w) == "unknown" for w in data.values()]))
+        rejected_dc = np.mean(np.concatenate([model.predict(w) == "unknown" for w in dc.values()]))
+        known_lost = np.mean(np.concatenate([model.predict(w) == "unknown" for w in held.values()]))
+        print(f"  open set, {left_out} never trained: unknown {100 * rejected:.1f}% (noise), "
+              f"{100 * rejected_dc:.1f}% (duty cycle); known windows read unknown {100 * known_lost:.2f}%")
+
+
+def subsets(states: tuple[str, ...], train: dict[str, np.ndarray], test_s: float) -> None:
+    params = [state_parameters(s) for s in states]
+    noise = simulate(params, list(states), filtered_noise(test_s, (0, 4), seed=17), seed=18)
+    duty = simulate(params, list(states), duty_cycle(2 * test_s, seed=19), seed=20)
+    for sensors in (("flow",), ("speed",), ("torque",), ("flow", "speed"), ("flow", "torque"), ("speed", "torque")):
+        model = ConditionModel(features=ConditionFeatures(sensors=sensors)).fit(train)
+        print(f"  sensors {'+'.join(sensors):14s} like training {100 * accuracy(model, noise):5.1f}%   "
+              f"duty cycle {100 * accuracy(model, duty):5.1f}%")
+
+
+def timing(model: ConditionModel, train: dict[str, np.ndarray]) -> None:
+    w = np.concatenate(list(train.values()))[:200]
+    t = time.perf_counter()
+    model.predict(w)
+    per = (time.perf_counter() - t) / len(w)
+    print(f"  scoring: {1e3 * per:.2f} ms per window -> 1000 machines x 1 window per 5 s needs "
+          f"{per * 1000:.1f} s per 5 s on one core (target <= 5 s; ratio {per * 1000 / 5:.2f})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--train-seconds", type=float, default=300.0)
+    ap.add_argument("--test-seconds", type=float, default=150.0)
+    ap.add_argument("--quick", action="store_true", help="skip the slow-noise and other-range rows")
+    ap.add_argument("--states", choices=("study", "extended", "both"), default="both")
+    args = ap.parse_args()
+    if args.states in ("study", "both"):
+        run(STUDY_STATES, args.train_seconds, args.test_seconds, args.quick)
+    if args.states in ("extended", "both"):
+        run(EXTENDED_STATES, args.train_seconds, args.test_seconds, args.quick)
+
+
+if __name__ == "__main__":
+    main()
