@@ -1,0 +1,40 @@
+"""``hydrowatch score``: offline verdicts of recordings, window by window (contract: ``score --json``).
+
+One JSON object per input file on stdout with ``--json``; otherwise one line per file (counts and
+accuracy). The work is :func:`hydrowatch.training.scoring.score_recording`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "score"
+HELP = "score recordings window by window with a model bundle (MODEL_DIR or models:/NAME@ALIAS)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--model``, ``--data``, ``--json``, ``--tracking-uri``."""
+    parser.add_argument("--model", required=True, help="model bundle folder or models:/NAME@ALIAS")
+    parser.add_argument("--data", required=True, type=Path, help="recording file or folder of recordings")
+    parser.add_argument("--json", action="store_true", help="one JSON object per file (the contract's format)")
+    parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Score every file; returns 0."""
+    from hydrowatch.io import read_recording
+    from hydrowatch.training import load_bundle, recording_files, score_recording
+
+    bundle = load_bundle(args.model, args.tracking_uri)
+    for path in recording_files(args.data):
+        result = score_recording(bundle, read_recording(path))
+        if args.json:
+            print(json.dumps(result), flush=True)
+        else:
+            s = result["summary"]
+            accuracy = "" if s["accuracy"] is None else f" accuracy={s['accuracy']:.4f}"
+            counts = " ".join(f"{k}={v}" for k, v in sorted(s["counts"].items()))
+            print(f"{path}: windows={s['windows']} {counts}{accuracy}", flush=True)
+    return 0

@@ -1,0 +1,71 @@
+"""The operator's view of a fleet: one row per machine, fed only by ``health_verdict`` messages (river style)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import pyarrow as pa
+
+
+@dataclass
+class MachineRow:
+    """What the table shows for one machine.
+
+    Attributes
+    ----------
+    state : str
+        Latest verdict's state.
+    probability : float
+        Its probability (0 for invalid and unknown).
+    since_s : float
+        Window start of the first verdict of the current run of this state, s (recording time).
+    last_s : float
+        End of the latest window, s.
+    reason : str or None
+    windows : int
+        Verdicts received.
+    """
+
+    state: str
+    probability: float
+    since_s: float
+    last_s: float
+    reason: str | None
+    windows: int
+
+
+class FleetTable:
+    """Latest verdict per machine; ``update`` takes one verdict row, ``rows``/``render`` read."""
+
+    def __init__(self) -> None:
+        self._rows: dict[str, MachineRow] = {}
+
+    def update(self, machine: str, verdict: dict[str, Any]) -> None:
+        """Add one verdict (a ``health_verdict`` row as a dict) of ``machine``; returns nothing."""
+        old = self._rows.get(machine)
+        state = str(verdict["state"])
+        since = old.since_s if old is not None and old.state == state else float(verdict["window_start"])
+        self._rows[machine] = MachineRow(state, float(verdict.get("probability") or 0.0), since,
+                                         float(verdict["window_end"]), verdict.get("reason"),
+                                         (old.windows if old else 0) + 1)
+
+    def rows(self) -> dict[str, MachineRow]:
+        """Machine → row, sorted by machine."""
+        return dict(sorted(self._rows.items()))
+
+    def render(self) -> str:
+        """The table as text, one line per machine."""
+        lines = [f"{'machine':<22} {'state':<20} {'p':>6} {'since [s]':>10} {'last [s]':>10} {'windows':>8}  reason"]
+        for machine, r in self.rows().items():
+            lines.append(f"{machine:<22} {r.state:<20} {r.probability:>6.3f} {r.since_s:>10.1f} {r.last_s:>10.1f} "
+                         f"{r.windows:>8}  {r.reason or ''}")
+        return "\n".join(lines)
+
+
+def verdict_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
+    """``health_verdict`` rows as dicts (``probabilities`` as state → p)."""
+    rows = batch.to_pylist()
+    for row in rows:
+        row["probabilities"] = {p["state"]: p["probability"] for p in row.get("probabilities") or []}
+    return rows

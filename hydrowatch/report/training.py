@@ -1,0 +1,105 @@
+"""Artifacts of a training run: plots, the relative-entropy table (as table 6.1), evaluation JSON.
+
+:func:`write_training_artifacts` writes them into a folder (MLflow logs the folder under
+``report/``); :func:`training_section` gives the same material as an HTML report section.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.recording import UNITS
+from hydrowatch.report.html import Section
+from hydrowatch.report.plots import confusion_png, correlations_png, error_distributions_png, pole_zero_png
+from hydrowatch.training.trainer import TrainingResult
+
+
+def entropy_table(result: TrainingResult) -> tuple[list[str], list[list[Any]]]:
+    """Median relative entropy of each state's classifier windows against every base state, nats.
+
+    Rows: (true state, sensor); columns: the base states. The row of one true state is the
+    study's table 6.1 (there for one window of ``load_alert``).
+    """
+    states = result.bundle.states
+    rows = []
+    for true_state, d in result.window_entropies.items():
+        for j, sensor in enumerate(result.bundle.sensors):
+            rows.append([true_state, sensor, *np.nanmedian(d[:, j, :], axis=0).tolist()])
+    return ["window state", "sensor", *states], rows
+
+
+def _pictures(result: TrainingResult) -> dict[str, bytes]:
+    sensors = result.bundle.sensors
+    ev = result.evaluation
+    title = f"Test windows ({ev['test_windows']}), {result.bundle.manifest['reference']}"
+    out = {"confusion_matrix.png": confusion_png(ev["confusion_matrix"], ev["labels"], title)}
+    for j, sensor in enumerate(sensors):
+        out[f"errors_{sensor}.png"] = error_distributions_png(
+            {s: e[:, j] for s, e in result.base_errors.items()}, sensor, UNITS[sensor])
+    out["residual_correlations.png"] = correlations_png({s: r["correlations"] for s, r in result.reference.items()})
+    if result.bundle.manifest["reference"] == "bj":
+        roots = {s: r["summary"]["validation"]["roots"] for s, r in result.reference.items()}
+        out["pole_zero.png"] = pole_zero_png(roots)
+    return out
+
+
+def write_training_artifacts(result: TrainingResult, folder: str | Path) -> list[Path]:
+    """Write plots (PNG), ``relative_entropy.csv``, ``evaluation.json`` and ``reference.json``; returns the files."""
+    d = Path(folder)
+    d.mkdir(parents=True, exist_ok=True)
+    files = []
+    for name, png in _pictures(result).items():
+        (d / name).write_bytes(png)
+        files.append(d / name)
+    header, rows = entropy_table(result)
+    with open(d / "relative_entropy.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(rows)
+    (d / "evaluation.json").write_text(json.dumps(result.evaluation, indent=1))
+    (d / "reference.json").write_text(json.dumps(result.reference, indent=1, default=str))
+    return [*files, d / "relative_entropy.csv", d / "evaluation.json", d / "reference.json"]
+
+
+def training_section(result: TrainingResult, title: str) -> Section:
+    """An HTML section with the training run's numbers, tables and plots."""
+    ev = result.evaluation
+    section = Section(title).text(
+        f"Reference models: {result.bundle.manifest['reference']}; test accuracy {ev['test_accuracy']:.4f} on "
+        f"{ev['test_windows']} held-out windows; training took {result.seconds:.0f} s.")
+    section.table(["sensor", "NRMSE one step", "residual acf inside bound", "ccf inside bound"],
+                  [[s, r["nrmse_one_step"], r["correlations"]["acf_inside"], r["correlations"]["ccf_inside"]]
+                   for s, r in result.reference.items()])
+    section.table(["state", "recall"], [[s, r] for s, r in ev["per_class_recall"].items()])
+    header, rows = entropy_table(result)
+    section.text("Median relative entropy of each state's windows against every base distribution (nats), "
+                 "as the study's table 6.1:")
+    section.table(header, rows)
+    for name, png in _pictures(result).items():
+        section.image(png, name)
+    return section
+
+
+def run_metrics(result: TrainingResult) -> dict[str, float]:
+    """Metrics of a training run, MLflow keys: NRMSE, Q/S or γ per sensor, accuracy, per-class recall."""
+    ev = result.evaluation
+    metrics: dict[str, float] = {"test_accuracy": ev["test_accuracy"],
+                                 "test_accuracy_with_open_set": ev["test_accuracy_with_open_set"],
+                                 "known_rejected": ev["known_rejected"], "ece": ev["ece"],
+                                 "train_seconds": result.seconds}
+    for sensor, r in result.reference.items():
+        metrics[f"nrmse.{sensor}"] = r["nrmse_one_step"]
+        summary = r["summary"]
+        if "gamma" in summary:
+            metrics[f"gamma.{sensor}"] = summary["gamma"]
+        else:
+            for key in ("Q", "Q_p", "S", "S_p"):
+                metrics[f"{key}.{sensor}"] = summary["validation"][key]
+        metrics[f"acf_inside.{sensor}"] = r["correlations"]["acf_inside"]
+    metrics.update({f"recall.{s}": v for s, v in ev["per_class_recall"].items()})
+    return metrics

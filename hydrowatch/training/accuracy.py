@@ -1,0 +1,50 @@
+"""Accuracy of a bundle on recordings made apart from its training data (another seed, other commands).
+
+Two kinds of command, as in issue 5: ``"training"`` (the study's filtered noise on 0-4 V, like the
+identification data) and ``"duty_cycle"`` (holds, ramps and steps,
+:func:`hydrowatch.plant.excitation.duty_cycle`), the same command driving every state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.errors import ParameterError
+from hydrowatch.health.metrics import confusion_matrix, per_class_recall
+from hydrowatch.health.verdict import UNKNOWN
+from hydrowatch.plant.excitation import duty_cycle
+from hydrowatch.plant.fleet import simulate_states
+from hydrowatch.training.bundle import ModelBundle
+from hydrowatch.training.scoring import pooled_accuracy, score_recording
+
+COMMANDS = ("training", "duty_cycle")
+
+
+def measure_accuracy(
+    bundle: ModelBundle, *, command: str = "training", seconds: float = 60.0, seed: int = 100,
+    states: Sequence[str] | None = None,
+) -> dict[str, Any]:
+    """Simulate every trained state under ``command`` with ``seed`` and score it window by window.
+
+    Returns
+    -------
+    dict
+        ``command``, ``seconds``, ``seed``, ``accuracy`` (judged windows), ``windows``,
+        ``per_class_recall``, ``labels`` and ``confusion_matrix`` (true rows; ``unknown`` column last).
+    """
+    if command not in COMMANDS:
+        raise ParameterError(f"command must be one of {COMMANDS}. Got {command!r}.")
+    states = list(states or bundle.states)
+    voltage = duty_cycle(seconds, seed=seed) if command == "duty_cycle" else None
+    recordings = simulate_states(states, seconds=seconds, command=voltage, seed=seed, fleet="accuracy")
+    results = [score_recording(bundle, r) for r in recordings]
+    accuracy, truth, verdict = pooled_accuracy(results)
+    labels = [*states, UNKNOWN]
+    return {
+        "command": command, "seconds": seconds, "seed": seed, "accuracy": accuracy, "windows": len(truth),
+        "per_class_recall": per_class_recall(np.asarray(truth), np.asarray(verdict), states),
+        "labels": labels, "confusion_matrix": confusion_matrix(np.asarray(truth), np.asarray(verdict), labels).tolist(),
+    }

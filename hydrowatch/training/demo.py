@@ -1,0 +1,178 @@
+"""The embedded end-to-end run behind ``hydrowatch demo``.
+
+1. identification recordings per health state (filtered noise 0-4 V, like the study);
+2. training of a Box-Jenkins and a NARX bundle, both tracked in MLflow and registered; the alias
+   ``champion`` goes to the one with the better held-out accuracy;
+3. accuracy of both on recordings of another seed, with the training command and with a working
+   duty cycle;
+4. a live fleet on the bus: machines with faults appearing (degradation paths) published by an
+   in-process fleet, a recorder and a scorer as separate processes, the live table fed by the
+   health topic;
+5. an HTML report with the plots, confusion matrices and per-machine timelines.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.bus import BusSettings, Publisher, Subscriber, alive, free_port, key, key_expr, open_session
+from hydrowatch.io import write_recording
+from hydrowatch.io.codec import sensor_chunk_from_arrays
+from hydrowatch.log import event, get_logger
+from hydrowatch.plant.faults import STUDY_STATES
+from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate_states
+from hydrowatch.recording import SAMPLE_RATE_HZ
+from hydrowatch.report.fleet_table import FleetTable, verdict_rows
+from hydrowatch.training.accuracy import measure_accuracy
+from hydrowatch.training.options import TrainingSettings
+from hydrowatch.training.pipeline import train_and_track
+from hydrowatch.training.tracking import set_alias
+from hydrowatch.training.trainer import TrainingResult
+
+_log = get_logger(__name__)
+FLEET = "demo"
+MACHINES = (
+    MachineSpec("m00"),
+    MachineSpec("m01", state="load_warning"),
+    MachineSpec("m02", path=DegradationPath("load", 20.0, 60.0)),
+    MachineSpec("m03", path=DegradationPath("pump_leak", 20.0, 60.0)),
+    MachineSpec("m04", path=DegradationPath("motor_leak", 20.0, 60.0)),
+    MachineSpec("m05", path=DegradationPath("valve_leak", 20.0, 60.0)),
+)
+"""The live fleet: healthy, a fixed fault, three study faults appearing, one fault never trained (valve leak)."""
+
+
+@dataclass
+class DemoSettings:
+    """Sizes of the demo (defaults finish in a few minutes on 2 cores)."""
+
+    out: Path
+    training: dict[str, TrainingSettings]
+    tracking: str | None = None
+    seed: int = 0
+    accuracy_seconds: float = 60.0
+    live_seconds: float = 100.0
+    speed: float = 5.0
+
+
+def identification_data(folder: Path, settings: TrainingSettings, seed: int) -> list[Path]:
+    """Simulate one recording per study state, as long as the data plan needs."""
+    folder.mkdir(parents=True, exist_ok=True)
+    seconds = settings.plan.samples_per_state / SAMPLE_RATE_HZ + 1.0
+    return [write_recording(r, folder / f"{r.state}.mcap") for r in simulate_states(STUDY_STATES, seconds=seconds,
+                                                                                     seed=seed)]
+
+
+def _spawn(module: str, argv: list[str], log_file: Path) -> subprocess.Popen:
+    with open(log_file, "ab") as fh:
+        return subprocess.Popen([sys.executable, "-m", module, *argv], stdout=fh, stderr=subprocess.STDOUT)
+
+
+def _stop(processes: list[subprocess.Popen], grace_s: float = 20.0) -> None:
+    for proc in processes:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
+    """Run the fleet on a private loopback bus with recorder and scorer processes; returns verdicts and truth."""
+    port = free_port()
+    bus = ["--bus-port", str(port)]
+    logs = s.out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    processes = [
+        _spawn("services.recorder", ["--out", str(s.out / "recordings"), "--fleet", FLEET, *bus],
+               logs / "recorder.log"),
+        _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, *bus], logs / "scorer.log"),
+    ]
+    fleet = Fleet(list(MACHINES), fleet=FLEET, seed=s.seed + 1)
+    from services.plant.command import FilteredNoiseCommand  # the plant service's endless filtered noise
+
+    command = FilteredNoiseCommand(fleet.n_machines, seed=s.seed + 2)
+    table = FleetTable()
+    timelines: dict[str, list[tuple[float, float, str]]] = {m: [] for m in fleet.machine_ids}
+    truth: dict[str, list[tuple[float, str]]] = {m: [] for m in fleet.machine_ids}
+    n = int(0.1 * SAMPLE_RATE_HZ)
+    try:
+        with open_session(BusSettings(port=port)) as session, Publisher(session) as publisher, \
+                Subscriber(session, key_expr(FLEET, "*", "health")) as health:
+            deadline = time.monotonic() + 120.0
+            while not any(k.split("/")[2].startswith("scorer.") for k in alive(session)):
+                if time.monotonic() > deadline or any(p.poll() is not None for p in processes):
+                    raise RuntimeError(f"the scorer did not come up; see {logs / 'scorer.log'}")
+                time.sleep(0.5)
+            fleet.settle(2.0)
+            wall0, last_draw = time.monotonic(), 0.0
+            while fleet.time < s.live_seconds:
+                out = fleet.step(command.next(n))
+                labels = fleet.states
+                for i, machine in enumerate(fleet.machine_ids):
+                    channels = {c: out[c][i] for c in ("voltage", "flow", "speed", "torque")}
+                    channels["state"] = np.full(n, labels[i], dtype=object)
+                    publisher.put(key(FLEET, machine, "sensors"), sensor_chunk_from_arrays(out["t"][i], channels))
+                    truth[machine].append((float(out["t"][i][0]), labels[i]))
+                _receive(health, table, timelines)
+                ahead = wall0 + fleet.time / s.speed - time.monotonic()
+                if ahead > 0:
+                    time.sleep(ahead)
+                if show and time.monotonic() - last_draw > 2.0:
+                    print("\x1b[2J\x1b[H" + table.render(), file=sys.stderr, flush=True)
+                    last_draw = time.monotonic()
+            _stop(processes[1:])  # the scorer drains and publishes its last verdicts
+            quiet = time.monotonic() + 2.0
+            while time.monotonic() < quiet:
+                _receive(health, table, timelines, wait=0.2)
+    finally:
+        _stop(processes)
+    return {"table": table, "timelines": timelines, "truth": truth}
+
+
+def _receive(health: Subscriber, table: FleetTable, timelines: dict[str, list], wait: float = 0.0) -> None:
+    while (message := health.recv(timeout=wait)) is not None:
+        for row in verdict_rows(message.batch):
+            table.update(message.key.machine, row)
+            timelines.setdefault(message.key.machine, []).append(
+                (row["window_start"], row["window_end"], row["state"]))
+        wait = 0.0
+
+
+def run_demo(s: DemoSettings, *, show: bool = False) -> dict[str, Any]:
+    """The whole demo; returns the summary (paths, accuracies, final table) and writes ``report.html``."""
+    from hydrowatch.report.demo import write_demo_report
+
+    s.out.mkdir(parents=True, exist_ok=True)
+    first = next(iter(s.training.values()))
+    t0 = time.monotonic()
+    identification_data(s.out / "identification", first, s.seed)
+    event(_log, "identification data simulated", seconds=round(time.monotonic() - t0, 1))
+    results: dict[str, TrainingResult] = {}
+    summaries: dict[str, dict[str, Any]] = {}
+    for kind, settings in s.training.items():
+        results[kind], summaries[kind] = train_and_track(
+            s.out / "identification", s.out / "models" / kind, settings, tracking=s.tracking, alias=None)
+    champion = max(results, key=lambda k: (results[k].evaluation["test_accuracy"], k == "narx"))
+    set_alias("hydrowatch", "champion", str(summaries[champion]["registered_version"]), s.tracking)
+    accuracy = {kind: [measure_accuracy(r.bundle, command=c, seconds=s.accuracy_seconds, seed=s.seed + 100)
+                       for c in ("training", "duty_cycle")] for kind, r in results.items()}
+    live = live_fleet(s, s.out / "models" / champion, show)
+    report = write_demo_report(s.out / "report.html", results, accuracy, live, champion)
+    return {
+        "out": str(s.out), "report": str(report), "champion": champion,
+        "training": summaries,
+        "accuracy": {k: {a["command"]: a["accuracy"] for a in v} for k, v in accuracy.items()},
+        "fleet": {m: r.state for m, r in live["table"].rows().items()},
+        "seconds": round(time.monotonic() - t0, 1),
+    }

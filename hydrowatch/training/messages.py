@@ -1,0 +1,43 @@
+"""Bus messages of the scorer: ``kl_window`` and ``health_verdict`` record batches (schemas/)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pyarrow as pa
+
+from hydrowatch.health.verdict import INVALID, UNKNOWN
+from hydrowatch.schemas import HEALTH_VERDICT, KL_WINDOW, wire_schema
+from hydrowatch.training.online import WindowVerdict
+
+OPEN_SET_REASON = "no trained state explains the window (open-set rule)"
+
+
+def verdict_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch:
+    """One ``health_verdict`` row; ``probability`` is 0 for ``invalid`` and ``unknown``."""
+    v = item.verdict
+    reason = v.reason if v.reason is not None else (OPEN_SET_REASON if v.state == UNKNOWN else None)
+    row = {
+        "window_start": [item.start_s], "window_end": [item.end_s], "state": [v.state],
+        "probability": [float(v.probability) if v.probability is not None else 0.0],
+        "probabilities": [[{"state": s, "probability": float(p)} for s, p in v.probabilities.items()]],
+        "reason": [reason], "model_version": [model_version],
+    }
+    return pa.RecordBatch.from_pydict(row, schema=wire_schema(HEALTH_VERDICT))
+
+
+def kl_batch(
+    item: WindowVerdict, sensors: Sequence[str], states: Sequence[str], model_version: str
+) -> pa.RecordBatch | None:
+    """The ``kl_window`` rows (sensor × state) of a judged window; None when it has no finite entropies."""
+    d = item.entropies
+    if d is None or item.verdict.state == INVALID or not np.all(np.isfinite(d)):
+        return None
+    n = len(sensors) * len(states)
+    row = {
+        "window_start": [item.start_s] * n, "window_end": [item.end_s] * n,
+        "sensor": [s for s in sensors for _ in states], "state": [k for _ in sensors for k in states],
+        "relative_entropy": np.asarray(d, dtype=np.float64).reshape(-1).tolist(), "model_version": [model_version] * n,
+    }
+    return pa.RecordBatch.from_pydict(row, schema=wire_schema(KL_WINDOW))

@@ -1,0 +1,130 @@
+"""What to train, and the command-line flags that say it (light: imports no model code).
+
+Shared by ``hydrowatch train``, the trainer service and ``hydrowatch demo``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+from hydrowatch.errors import ParameterError
+from hydrowatch.health.plan import DataPlan
+
+DEFAULT_EXPERIMENT = "hydrowatch"
+DEFAULT_MODEL_NAME = "hydrowatch"
+DEFAULT_ALIAS = "champion"
+DEFAULT_NARX: dict[str, Any] = {"input_delays": 4, "output_delays": 4, "hidden": 8, "max_iter": 40}
+"""Short NARX of the demo (the study's Table 4.5 network is 15/15/35: ``--narx 15,15,35``)."""
+DEFAULT_BJ: dict[str, Any] = {"nb": 3, "nf": 3, "nc": 2, "nd": 2, "delay": 0}
+"""Box-Jenkins orders of every sensor unless given."""
+DEMO_PLAN = DataPlan(reference_samples=4000, base_samples=6000, classifier_windows=50, window=1000, hop=500)
+"""A small data plan (35,500 samples, 177.5 s per state) that trains in about a minute on 2 cores."""
+
+
+@dataclass(frozen=True)
+class TrainingSettings:
+    """What to train.
+
+    Parameters
+    ----------
+    reference : {"narx", "bj"}
+        Kind of the reference models.
+    narx, bj : dict
+        Parameters of :class:`~hydrowatch.sysid.NARX` / :class:`~hydrowatch.sysid.BoxJenkins`.
+    plan : DataPlan
+        How each state's samples are shared out (study section 6.3).
+    distribution : {"gaussian", "mixture"}
+        Base and window distributions (Eq. 5.3, or mixtures: the study's proposed improvement).
+    hidden : int
+        Classifier neurons (Table 6.2: 15).
+    seed : int
+        Seed of the classifier's split and weights.
+    """
+
+    reference: str = "narx"
+    narx: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_NARX))
+    bj: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_BJ))
+    plan: DataPlan = DEMO_PLAN
+    distribution: str = "gaussian"
+    hidden: int = 15
+    seed: int = 0
+
+    def reference_params(self) -> dict[str, Any]:
+        """Parameters of the chosen reference model kind."""
+        return dict(self.narx if self.reference == "narx" else self.bj)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Flat JSON-able form (MLflow parameters, manifest)."""
+        out: dict[str, Any] = {"reference": self.reference, "distribution": self.distribution,
+                               "classifier_hidden": self.hidden, "seed": self.seed}
+        out.update({f"{self.reference}.{k}": v for k, v in self.reference_params().items()})
+        out.update({f"plan.{k}": v for k, v in asdict(self.plan).items()})
+        return out
+
+
+STUDY_PLAN = DataPlan()
+"""The study's full plan: 10,000 reference, 40,000 base samples, 200 windows of 1,000 (1250 s per state)."""
+
+
+def _ints(text: str, names: tuple[str, ...], flag: str) -> dict[str, int]:
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != len(names):
+        raise ParameterError(f"{flag} must be {len(names)} comma-separated integers {','.join(names).upper()}. "
+                             f"Got {text!r}.")
+    return dict(zip(names, values))
+
+
+def add_training_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags that choose what is trained (shared by ``train``, ``trainer`` and ``demo``)."""
+    g = parser.add_argument_group("training")
+    g.add_argument("--reference", choices=("narx", "bj"), default="narx", help="reference model kind (default narx)")
+    g.add_argument("--narx", default=None, metavar="NU,NY,H",
+                   help=f"NARX input delays, output delays, neurons (default "
+                        f"{DEFAULT_NARX['input_delays']},{DEFAULT_NARX['output_delays']},{DEFAULT_NARX['hidden']}; "
+                        "the study: 15,15,35)")
+    g.add_argument("--narx-iterations", type=int, default=DEFAULT_NARX["max_iter"],
+                   help=f"Levenberg-Marquardt iterations at most (default {DEFAULT_NARX['max_iter']})")
+    g.add_argument("--bj", default=None, metavar="NB,NF,NC,ND",
+                   help="Box-Jenkins orders (default {nb},{nf},{nc},{nd})".format(**DEFAULT_BJ))
+    g.add_argument("--bj-delay", type=int, default=DEFAULT_BJ["delay"], help="Box-Jenkins dead time, samples")
+    g.add_argument("--full-plan", action="store_true",
+                   help="the study's data plan (1250 s per state) instead of the small default (177.5 s)")
+    g.add_argument("--windows", type=int, default=None, help="classifier windows per state (plan)")
+    g.add_argument("--distribution", choices=("gaussian", "mixture"), default="gaussian",
+                   help="base and window distributions (default gaussian, Eq. 5.3)")
+    g.add_argument("--seed", type=int, default=0, help="classifier seed (default 0)")
+
+
+def settings_from_args(args: argparse.Namespace) -> TrainingSettings:
+    """:class:`TrainingSettings` from :func:`add_training_arguments`' flags."""
+    narx = dict(DEFAULT_NARX)
+    if args.narx:
+        narx.update(_ints(args.narx, ("input_delays", "output_delays", "hidden"), "--narx"))
+    narx["max_iter"] = args.narx_iterations
+    bj = dict(DEFAULT_BJ)
+    if args.bj:
+        bj.update(_ints(args.bj, ("nb", "nf", "nc", "nd"), "--bj"))
+    bj["delay"] = args.bj_delay
+    plan = STUDY_PLAN if args.full_plan else DEMO_PLAN
+    if args.windows is not None:
+        plan = replace(plan, classifier_windows=args.windows)
+    return TrainingSettings(reference=args.reference, narx=narx, bj=bj, plan=plan, distribution=args.distribution,
+                            seed=args.seed)
+
+
+def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--tracking-uri``, ``--experiment``, ``--model-name``, ``--alias``, ``--no-register``."""
+    g = parser.add_argument_group("MLflow")
+    g.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default $MLFLOW_TRACKING_URI or sqlite:///<cwd>/mlruns/mlflow.db)")
+    g.add_argument("--experiment", default=DEFAULT_EXPERIMENT, help=f"experiment (default {DEFAULT_EXPERIMENT})")
+    g.add_argument("--model-name", default=DEFAULT_MODEL_NAME, help=f"registered model (default {DEFAULT_MODEL_NAME})")
+    g.add_argument("--alias", default=DEFAULT_ALIAS, help=f"alias moved to the new version (default {DEFAULT_ALIAS})")
+    g.add_argument("--no-register", action="store_true", help="log the run but do not register the bundle")
+
+

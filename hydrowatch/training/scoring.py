@@ -1,0 +1,100 @@
+"""Offline scoring of recordings window by window: the ``hydrowatch score --json`` objects (contract).
+
+Each recording's prediction errors (after the reference models' warm-up) are cut into windows of
+the bundle's length and hop; every window gets a verdict (:func:`hydrowatch.health.verdict.judge`)
+and its relative entropies per sensor and state. A labelled recording also gets its accuracy:
+windows whose label is a trained state count as right when the verdict names it; windows of a
+state the model was not trained on count as right when the verdict is ``unknown``; ``invalid``
+windows are left out of the accuracy (they are counted).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.health.verdict import INVALID, UNKNOWN
+from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
+from hydrowatch.training.bundle import ModelBundle
+
+
+def window_truth(recording: Recording, starts: np.ndarray, window: int, trained: list[str]) -> list[str | None]:
+    """The expected verdict of each window: its label, ``unknown`` for an untrained label, None when unlabelled.
+
+    Parameters
+    ----------
+    starts : ndarray of int, shape (n_windows,)
+        First sample of each window, counted from the start of the recording.
+    """
+    labels = recording.meta.get("labels")
+    out: list[str | None] = []
+    for start in starts.tolist():
+        if labels is not None:
+            seen = set(np.asarray(labels[start : start + window]).astype(str).tolist())
+            label = seen.pop() if len(seen) == 1 else None
+        else:
+            label = recording.state
+        out.append(None if label is None else (label if label in trained else UNKNOWN))
+    return out
+
+
+def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]:
+    """The contract's object for one recording: ``source``, ``windows``, ``summary``.
+
+    ``windows[i]`` has ``start_s`` (time of its first sample, s), ``state``, ``probability``,
+    ``probabilities`` (state → p), ``kl`` (sensor → state → relative entropy, nats) and, for
+    ``invalid``/``unknown`` windows, ``reason``; ``truth`` when the recording is labelled.
+    ``summary`` has ``windows``, ``counts`` (state → n), ``accuracy`` (None when unlabelled),
+    ``model_version``.
+    """
+    health = bundle.health
+    window = int(health.features_.window)
+    warmup = bundle.warmup
+    errors = bundle.errors(recording)[warmup:]
+    t = recording.t
+    windows: list[dict[str, Any]] = []
+    if errors.shape[0] < window:
+        have = max(0, errors.shape[0])
+        windows.append({
+            "start_s": float(t[0]) if len(t) else 0.0, "state": INVALID, "probability": None, "probabilities": {},
+            "kl": {}, "reason": f"too short: {have} samples after the {warmup}-sample warm-up, a window needs {window} "
+                                f"({window / SAMPLE_RATE_HZ:g} s)",
+        })
+        truths: list[str | None] = [None]
+    else:
+        starts, verdicts = health.score(errors)
+        kl = health.features_.window_entropies(errors)
+        truths = window_truth(recording, starts + warmup, window, bundle.states)
+        for i, (start, verdict) in enumerate(zip(starts.tolist(), verdicts)):
+            item: dict[str, Any] = {"start_s": float(t[start + warmup]), **verdict.to_dict()}
+            if verdict.state == UNKNOWN and "reason" not in item:
+                item["reason"] = "no trained state explains the window (open-set rule)"
+            item["kl"] = {} if verdict.state == INVALID else {
+                s: {k: float(kl[i, j, m]) for m, k in enumerate(bundle.states)} for j, s in enumerate(bundle.sensors)
+            }
+            if truths[i] is not None:
+                item["truth"] = truths[i]
+            windows.append(item)
+    counts = Counter(w["state"] for w in windows)
+    judged = [(w["state"], truth) for w, truth in zip(windows, truths) if truth is not None and w["state"] != INVALID]
+    accuracy = float(np.mean([p == tr for p, tr in judged])) if judged else None
+    return {
+        "source": str(recording.meta.get("source", "")),
+        "windows": windows,
+        "summary": {"windows": len(windows), "counts": dict(counts), "accuracy": accuracy,
+                    "model_version": bundle.version},
+    }
+
+
+def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:
+    """Accuracy over every judged, labelled window of several scored recordings, with the (truth, verdict) lists."""
+    truth, verdict = [], []
+    for result in results:
+        for w in result["windows"]:
+            if "truth" in w and w["state"] != INVALID:
+                truth.append(w["truth"])
+                verdict.append(w["state"])
+    accuracy = float(np.mean(np.asarray(truth) == np.asarray(verdict))) if truth else None
+    return accuracy, truth, verdict

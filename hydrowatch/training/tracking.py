@@ -1,0 +1,165 @@
+"""MLflow tracking of training runs and the model registry (../shared/docs/stack-notes.md, "MLflow").
+
+One run per trained bundle: parameters (reference model orders or delay lines and neurons, data
+plan, window), metrics (one-step NRMSE per sensor, Q/S or γ, test accuracy, per-class recall),
+artifacts (the bundle, the report plots and tables) and a registered model version pointing at
+the bundle, with an alias (``champion``) that the scorer can follow. The tracking URI is always
+explicit: ``--tracking-uri``, else ``MLFLOW_TRACKING_URI``, else ``sqlite:///<cwd>/mlruns/mlflow.db``
+with artifacts next to the database (``mlruns/artifacts``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from hydrowatch.errors import DataError, ParameterError
+from hydrowatch.log import event, get_logger
+from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME
+
+_log = get_logger(__name__)
+
+
+def tracking_uri(explicit: str | None = None) -> str:
+    """The tracking URI to use: ``explicit``, ``$MLFLOW_TRACKING_URI`` or ``sqlite:///<cwd>/mlruns/mlflow.db``."""
+    uri = explicit or os.environ.get("MLFLOW_TRACKING_URI")
+    if uri:
+        return uri
+    folder = Path.cwd() / "mlruns"
+    folder.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{folder / 'mlflow.db'}"
+
+
+def _artifact_root(uri: str) -> str | None:
+    """Artifacts folder next to a sqlite database (None: the server's default)."""
+    if uri.startswith("sqlite:///"):
+        db = Path(uri[len("sqlite:///") :])
+        return (db.parent / "artifacts").resolve().as_uri()
+    return None
+
+
+def _client(uri: str) -> Any:
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    import mlflow
+    from mlflow.tracking import MlflowClient
+
+    mlflow.set_tracking_uri(uri)
+    mlflow.set_registry_uri(uri)
+    return MlflowClient(tracking_uri=uri, registry_uri=uri)
+
+
+def _experiment_id(client: Any, name: str, uri: str) -> str:
+    found = client.get_experiment_by_name(name)
+    if found is not None:
+        return str(found.experiment_id)
+    root = _artifact_root(uri)
+    return str(client.create_experiment(name, artifact_location=f"{root}/{name}" if root else None))
+
+
+def _finite(metrics: dict[str, float]) -> dict[str, float]:
+    return {k: float(v) for k, v in metrics.items() if v is not None and math.isfinite(float(v))}
+
+
+def log_training(
+    *,
+    params: dict[str, Any],
+    metrics: dict[str, float],
+    bundle_dir: str | Path,
+    report_dir: str | Path | None = None,
+    tracking: str | None = None,
+    experiment: str = DEFAULT_EXPERIMENT,
+    run_name: str | None = None,
+    model_name: str | None = DEFAULT_MODEL_NAME,
+    alias: str | None = DEFAULT_ALIAS,
+    tags: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``model_uri``, ``version``.
+
+    Parameters
+    ----------
+    params, metrics : dict
+        Logged in one batch each (non-finite metrics are left out).
+    bundle_dir : path
+        The saved :class:`~hydrowatch.training.bundle.ModelBundle`; logged under ``bundle/``.
+    report_dir : path, optional
+        Plots and tables; logged under ``report/``.
+    model_name : str or None
+        Registered model name (None: do not register).
+    alias : str or None
+        Alias moved to the new version (None: leave aliases alone).
+    """
+    import mlflow
+
+    uri = tracking_uri(tracking)
+    client = _client(uri)
+    experiment_id = _experiment_id(client, experiment, uri)
+    with mlflow.start_run(experiment_id=experiment_id, run_name=run_name) as run:
+        mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
+        mlflow.log_metrics(_finite(metrics))
+        if tags:
+            mlflow.set_tags(tags)
+        mlflow.log_artifacts(str(bundle_dir), "bundle")
+        if report_dir is not None:
+            mlflow.log_artifacts(str(report_dir), "report")
+        run_id = run.info.run_id
+        source = f"{run.info.artifact_uri}/bundle"
+    out: dict[str, Any] = {"run_id": run_id, "tracking_uri": uri, "experiment": experiment, "model_uri": None,
+                           "version": None}
+    if model_name:
+        try:
+            client.get_registered_model(model_name)
+        except Exception:  # noqa: BLE001 - MLflow raises its own RestException when missing
+            client.create_registered_model(model_name)
+        version = client.create_model_version(model_name, source=source, run_id=run_id, tags=tags or {})
+        if alias:
+            client.set_registered_model_alias(model_name, alias, version.version)
+        out["version"] = str(version.version)
+        out["model_uri"] = f"models:/{model_name}@{alias}" if alias else f"models:/{model_name}/{version.version}"
+    event(_log, "training run logged", run_id=run_id, model=out["model_uri"], uri=uri)
+    return out
+
+
+def set_alias(model_name: str, alias: str, version: str, tracking: str | None = None) -> None:
+    """Point ``alias`` of ``model_name`` at ``version``."""
+    _client(tracking_uri(tracking)).set_registered_model_alias(model_name, alias, version)
+
+
+def parse_model_uri(uri: str) -> tuple[str, str | None, str | None]:
+    """``models:/NAME@ALIAS`` → (NAME, ALIAS, None); ``models:/NAME/VERSION`` → (NAME, None, VERSION)."""
+    body = uri[len("models:/") :] if uri.startswith("models:/") else ""
+    name, at, alias = body.partition("@")
+    if at and name and alias:
+        return name, alias, None
+    name, slash, version = body.partition("/")
+    if slash and name and version:
+        return name, None, version
+    raise ParameterError(f"model URI must be models:/NAME@ALIAS or models:/NAME/VERSION. Got {uri!r}.")
+
+
+def resolve_version(uri: str, tracking: str | None = None) -> tuple[str, str]:
+    """(registered version, artifact source) that a registry URI points at now."""
+    name, alias, version = parse_model_uri(uri)
+    client = _client(tracking_uri(tracking))
+    try:
+        mv = client.get_model_version_by_alias(name, alias) if alias else client.get_model_version(name, version)
+    except Exception as exc:  # noqa: BLE001 - MlflowException for unknown names, aliases, versions
+        raise DataError(f"model {uri} must exist in the registry at {tracking_uri(tracking)}. Got: {exc}".split("\n")[0]
+                        + " Train one with `hydrowatch train` or pass --tracking-uri.") from None
+    return str(mv.version), str(mv.source)
+
+
+def download_registered(uri: str, tracking: str | None = None) -> tuple[Path, str]:
+    """Download the bundle a registry URI points at; returns (local folder, ``NAME/vVERSION``)."""
+    import mlflow
+
+    name, _, _ = parse_model_uri(uri)
+    version, source = resolve_version(uri, tracking)
+    folder = Path(tempfile.mkdtemp(prefix="hydrowatch-model-"))
+    local = mlflow.artifacts.download_artifacts(artifact_uri=source, dst_path=str(folder))
+    return Path(local), f"{name}/v{version}"

@@ -1,0 +1,163 @@
+"""Scorer service: sensor chunks in, relative entropies and verdicts out, one window at a time.
+
+Subscribes to ``hydro/<fleet>/*/sensors`` (``--shard i/n``: only that shard's machines), keeps each
+machine's delay lines and window (:class:`hydrowatch.training.online.OnlineScorer`), predicts one
+step ahead per sensor batched across machines, and publishes ``hydro/<fleet>/<machine>/kl`` and
+``…/health`` for every window that closes. Gaps, NaN, late or out-of-order chunks make the
+window in progress ``invalid`` with its reason. The model comes from a bundle folder or the MLflow
+registry (``models:/NAME@ALIAS``); with ``--follow-alias S`` the alias is checked every S seconds
+and the scorer switches (fresh windows) when it moves. SIGINT/SIGTERM drains and exits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from hydrowatch.bus import (
+    Publisher,
+    Shard,
+    StatusReporter,
+    Subscriber,
+    add_bus_arguments,
+    key,
+    key_expr,
+    open_session,
+    parse_shard,
+)
+from hydrowatch.bus.service import service_main
+from hydrowatch.bus.session import settings_from_args
+from hydrowatch.io.codec import arrays_from_sensor_chunk
+from hydrowatch.log import event, get_logger
+
+if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
+    from hydrowatch.bus import Message
+    from hydrowatch.training.bundle import ModelBundle
+    from hydrowatch.training.online import Chunk, WindowVerdict
+
+NAME = "scorer"
+HELP = "score sensor chunks online: publish relative entropies (…/kl) and verdicts (…/health) per window"
+DEFAULT_MODEL = "models:/hydrowatch@champion"
+log = get_logger("services.scorer")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", default=DEFAULT_MODEL,
+                        help=f"bundle folder or registry URI (default {DEFAULT_MODEL})")
+    parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
+    parser.add_argument("--follow-alias", type=float, default=0.0, metavar="SECONDS",
+                        help="re-check a models:/NAME@ALIAS this often and switch when it moves (0: never)")
+    parser.add_argument("--fleet", default="*", help="fleet to score (default: every fleet)")
+    parser.add_argument("--shard", type=parse_shard, default=Shard(), help="score only shard i/n of the machines")
+    parser.add_argument("--tick", type=float, default=0.05, help="seconds of chunks gathered per batch (default 0.05)")
+    parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
+    add_bus_arguments(parser)
+
+
+class _Model:
+    """The bundle in use and, for a registry alias, when to look again."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        from hydrowatch.training.bundle import load_bundle
+
+        self.args = args
+        self.bundle: ModelBundle = load_bundle(args.model, args.tracking_uri)
+        self.next_check = time.monotonic() + args.follow_alias
+
+    def moved(self) -> bool:
+        """True when the followed alias now points at another version (the new bundle is loaded)."""
+        a = self.args
+        if a.follow_alias <= 0 or "@" not in str(a.model) or time.monotonic() < self.next_check:
+            return False
+        self.next_check = time.monotonic() + a.follow_alias
+        from hydrowatch.training.bundle import load_bundle
+        from hydrowatch.training.tracking import parse_model_uri, resolve_version
+
+        version, _ = resolve_version(a.model, a.tracking_uri)
+        if f"{parse_model_uri(a.model)[0]}/v{version}" == self.bundle.version:
+            return False
+        self.bundle = load_bundle(a.model, a.tracking_uri)
+        event(log, "model switched", model=a.model, version=self.bundle.version)
+        return True
+
+
+def _publish(publisher: Publisher, bundle: ModelBundle, verdicts: list[WindowVerdict]) -> None:
+    from hydrowatch.training.messages import kl_batch, verdict_batch
+
+    for item in verdicts:
+        fleet, machine = item.machine.split("/", 1)
+        kl = kl_batch(item, bundle.sensors, bundle.states, bundle.version)
+        if kl is not None:
+            publisher.put(key(fleet, machine, "kl"), kl)
+        publisher.put(key(fleet, machine, "health"), verdict_batch(item, bundle.version))
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Score until ``stop`` (or ``--seconds``); returns 0."""
+    from hydrowatch.training.online import OnlineScorer
+
+    model = _Model(args)
+    scorer = OnlineScorer(model.bundle)
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    counters = {"verdicts": 0}
+    with open_session(settings_from_args(args)) as session:
+        subscriber = Subscriber(session, key_expr(args.fleet, "*", "sensors"), shard=args.shard)
+        publisher = Publisher(session)
+        reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {
+            "messages_in": subscriber.received, "messages_out": publisher.messages_out,
+            "messages_undecodable": subscriber.undecodable_total})
+        try:
+            reporter.start()
+            reporter.status = "running"
+            event(log, "scorer started", model=model.bundle.version, shard=str(args.shard), fleet=args.fleet)
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                chunks = _gather(subscriber, args.tick)
+                if model.moved():
+                    scorer = OnlineScorer(model.bundle)
+                if chunks:
+                    verdicts = scorer.update(chunks)
+                    _publish(publisher, model.bundle, verdicts)
+                    counters["verdicts"] += len(verdicts)
+            reporter.status = "draining"
+            subscriber.close()
+            rest = [_chunk(m) for m in subscriber.drain()]
+            _publish(publisher, model.bundle, scorer.update(rest))
+        finally:
+            subscriber.close()
+            reporter.stop()
+            publisher.close()
+    if subscriber.undecodable_total:
+        event(log, "undecodable messages skipped", logging.WARNING, count=subscriber.undecodable_total)
+    event(log, "scorer stopped", verdicts=counters["verdicts"], machines=len(scorer.machines), samples=scorer.samples)
+    return 0
+
+
+def _chunk(message: Message) -> Chunk:
+    from hydrowatch.training.online import Chunk
+
+    t, channels = arrays_from_sensor_chunk(message.batch)
+    return Chunk(f"{message.key.fleet}/{message.key.machine}", t, channels)
+
+
+def _gather(subscriber: Subscriber, tick: float) -> list[Chunk]:
+    """Chunks received within ``tick`` seconds of the first one (at most 0.1 s waiting for it)."""
+    first = subscriber.recv(timeout=0.1)
+    if first is None:
+        return []
+    chunks = [_chunk(first)]
+    end = time.monotonic() + tick
+    while (left := end - time.monotonic()) > 0:
+        message = subscriber.recv(timeout=left)
+        if message is None:
+            break
+        chunks.append(_chunk(message))
+    return chunks
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.scorer``."""
+    return service_main(NAME, HELP, add_arguments, run, argv)

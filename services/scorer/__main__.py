@@ -1,0 +1,5 @@
+import sys
+
+from services.scorer import main
+
+sys.exit(main())

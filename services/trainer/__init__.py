@@ -1,0 +1,58 @@
+"""Trainer service: trains from a recordings folder (e.g. the recorder's) and registers the model.
+
+A thin wrapper over :func:`hydrowatch.training.pipeline.train_and_track`: trains once, or every
+``--every`` seconds (the registry alias then moves to each new version, and scorers started with
+``--follow-alias`` switch). Files that cannot be read yet (an MCAP the recorder is still writing)
+are skipped. SIGINT/SIGTERM stops it between trainings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+from hydrowatch.bus.service import service_main
+from hydrowatch.errors import DataError
+from hydrowatch.log import event, get_logger
+from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_from_args
+
+NAME = "trainer"
+HELP = "train from a recordings folder (once or every N seconds) and register the model in MLflow"
+log = get_logger("services.trainer")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", type=Path, default=Path("recordings"), help="recordings folder (default recordings)")
+    parser.add_argument("--out", type=Path, default=Path("models/latest"), help="bundle folder (default models/latest)")
+    parser.add_argument("--every", type=float, default=0.0, help="retrain every this many seconds (0: once)")
+    add_training_arguments(parser)
+    add_tracking_arguments(parser)
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Train (repeatedly with ``--every``) until ``stop``; returns 0, or 2 when a single training fails."""
+    from hydrowatch.training.pipeline import train_and_track
+
+    settings = settings_from_args(args)
+    while not stop.is_set():
+        try:
+            _, summary = train_and_track(
+                args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
+                model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True)
+            print(json.dumps(summary), flush=True)
+        except DataError as exc:
+            if args.every <= 0:
+                raise
+            event(log, "training skipped", logging.WARNING, reason=str(exc))
+        if args.every <= 0 or stop.wait(args.every):
+            break
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.trainer``."""
+    return service_main(NAME, HELP, add_arguments, run, argv)
