@@ -3,12 +3,16 @@
 Box-Jenkins workflow: :func:`preliminary_identification` (impulse response, disturbance, GPAC;
 Eqs. 3.3-3.7) -> :class:`BoxJenkins` (prediction-error fit, Eqs. 3.8-3.14) -> validation (Q, S,
 pole-zero; Eqs. 3.17, 3.18) -> :func:`search_orders` (the study's order rules). See docs/sysid.md.
+
+NARX: :class:`NARX` (tapped delay lines, Levenberg-Marquardt with Bayesian regularisation, Eq. 4.21)
+and :func:`search_structure` (the study's delay/neuron search, Eqs. 4.22, 4.23). See docs/narx.md.
 """
 
 from hydrowatch.sysid.boxjenkins import BoxJenkins
 from hydrowatch.sysid.correlation import autocorrelation, confidence_bound, cross_correlation
 from hydrowatch.sysid.gpac import gpac_table, read_gpac
 from hydrowatch.sysid.narx import NARX
+from hydrowatch.sysid.narx_search import search_structure
 from hydrowatch.sysid.order_search import OrderSearch, search_orders
 from hydrowatch.sysid.preliminary import (
     PreliminaryIdentification,
@@ -37,4 +41,5 @@ __all__ = [
     "read_gpac",
     "s_statistic",
     "search_orders",
+    "search_structure",
 ]
