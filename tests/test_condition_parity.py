@@ -34,9 +34,11 @@ def test_spool_model_and_load_pressure_match_the_plant():
     w = _windows(filtered_noise(10, (0, 4), seed=5), 6, noise=False)["healthy"]
     pl = parity.load_pressure(w["speed"], w["torque"], p)
     assert np.sqrt(np.mean((pl - w["load_pressure"] * 1e5) ** 2)) < 0.3e5  # < 0.3 bar of a ~15 bar swing
-    ps = parity.supply_pressure(w["flow"] / 6e4, p, p.Cpl, p.Pc)
-    assert np.sqrt(np.mean((ps - w["supply_pressure"] * 1e5)[:, 200:] ** 2)) < 0.5e5
     x = parity.spool_position(w["voltage"], p)
+    m = x.shape[0]
+    ps, ql = parity.supply_and_valve_flow(p.Kq * x, pl, p, np.full(m, p.Cp + p.Cpl + p.Cvl), np.full(m, p.Pc))
+    assert np.sqrt(np.mean((ps - w["supply_pressure"] * 1e5)[:, 200:] ** 2)) < 0.5e5  # from the command alone
+    assert np.sqrt(np.mean((ql * 6e4 - w["flow"])[:, 200:] ** 2)) < 0.05  # L/min
     predicted = p.Kq * x * np.sqrt(np.maximum(w["supply_pressure"] * 1e5 - w["load_pressure"] * 1e5, 0.0))
     assert np.sqrt(np.mean((predicted * 6e4 - w["flow"]) ** 2)) < 0.01  # L/min, noiseless
 

@@ -18,6 +18,15 @@ command makes them differ, and nothing can score less than 1. The layout is that
 :class:`hydrowatch.health.features.RelativeEntropyFeatures`, relation-major
 (``[load: states…, motor: states…, valve: states…]``), so the health classifier and the
 open-set rule take it unchanged.
+
+:meth:`ConditionFeatures.transform_with_levels` adds the same ratios for each state's narrow
+**level box** (own severity within ``level_width`` of the fitted level, the others within
+``level_width`` × their warning severity of nominal: the state's point hypothesis), which the
+decision weighs by ``level_weight`` (a soft prior that a machine sits near its state's trained
+severity). In a hold the band boxes of valve_coil, valve_leak, pump_leak and relief_spring all
+explain the window (they agree on speed at 2 V and differ by 1–2 % elsewhere, inside a band); at
+their trained levels they differ, which breaks the tie wherever the hold is away from 2 V. The
+open-set rule uses the band ratios only, so a severity anywhere in its band is still a known state.
 """
 
 from __future__ import annotations
@@ -43,14 +52,23 @@ BAND_MARGIN = 0.05
 """Relative widening of each severity band (the band edges are physics, the level is fitted)."""
 
 
-def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000) -> np.ndarray:
-    """Raw windows of a recording, shape (n_windows, window, 4).
+def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
+                           temperature: bool | None = None) -> np.ndarray:
+    """Raw windows of a recording, shape (n_windows, window, 4) or (n_windows, window, 5).
 
-    Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m]; window k covers samples
-    ``[k·hop, k·hop + window)``.
+    Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m], and the oil temperature
+    [°C] as 5th channel when ``temperature`` is True, or None (default) and the recording has
+    one; window k covers samples ``[k·hop, k·hop + window)``.
     """
     check_window(window, hop)
-    return np.stack([sliding_windows(rec[c], window, hop) for c in E.CHANNELS], axis=-1)
+    channels = list(E.CHANNELS)
+    has = E.TEMPERATURE in rec.channels
+    if temperature and not has:
+        raise DataError(f"recording must have a '{E.TEMPERATURE}' channel when temperature=True. "
+                        f"Got channels {sorted(rec.channels)}. Pass temperature=None to use it when present.")
+    if has and temperature is not False:
+        channels.append(E.TEMPERATURE)
+    return np.stack([sliding_windows(rec[c], window, hop) for c in channels], axis=-1)
 
 
 class ConditionFeatures:
@@ -72,6 +90,16 @@ class ConditionFeatures:
         unconstrained parity estimates, 6 severities and log10 residual ratios of the 2 + 4 fits.
     tolerance : float, default 0.25
         How far (× its warning severity) a fault that is not a state's own may be from nominal.
+    level_weight : float, default 1.0
+        Weight of the level-box ratios in the decision (0: band boxes only); see
+        :class:`hydrowatch.condition.model.ParityRule`.
+    level_width : float, default 0.01
+        Half-width of the level box: relative to the fitted level for a state's own fault, × the
+        warning severity for the others.
+    viscosity_coefficient : float, default 0.04
+        k, 1/K, of the oil: viscosity ∝ exp(−k·(T − 40 °C)). Used with windows that carry the
+        temperature channel to refer leakage to 40 °C (take it from the oil's data sheet; 0.04 is
+        a mineral ISO VG 46 oil near 40 °C and the plant simulator's default).
 
     Attributes
     ----------
@@ -89,19 +117,25 @@ class ConditionFeatures:
 
     def __init__(self, *, window: int = 1000, hop: int = 1000, sensors: Sequence[str] = SENSORS,
                  nominal: PlantParameters | Mapping[str, float] | None = None, kind: str = "scores",
-                 tolerance: float = 0.25) -> None:
+                 tolerance: float = 0.25, level_weight: float = 1.0, level_width: float = 0.01,
+                 viscosity_coefficient: float = 0.04) -> None:
         self.window = window
         self.hop = hop
         self.sensors = sensors
         self.nominal = nominal
         self.kind = kind
         self.tolerance = tolerance
+        self.level_weight = level_weight
+        self.level_width = level_width
+        self.viscosity_coefficient = viscosity_coefficient
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters (``nominal`` as a plain dict or None, JSON-able)."""
         nominal = self.nominal.to_dict() if isinstance(self.nominal, PlantParameters) else self.nominal
         return {"window": self.window, "hop": self.hop, "sensors": list(self.sensors),
-                "nominal": None if nominal is None else dict(nominal), "kind": self.kind, "tolerance": self.tolerance}
+                "nominal": None if nominal is None else dict(nominal), "kind": self.kind, "tolerance": self.tolerance,
+                "level_weight": self.level_weight, "level_width": self.level_width,
+                "viscosity_coefficient": self.viscosity_coefficient}
 
     def _parameters(self) -> PlantParameters:
         check_window(self.window, self.hop)
@@ -112,6 +146,12 @@ class ConditionFeatures:
             raise ParameterError(f"kind must be one of {KINDS}. Got {self.kind!r}.")
         if not 0.0 < self.tolerance < 1.0:
             raise ParameterError(f"tolerance must be in (0, 1). Got {self.tolerance!r}; 0.25 is the default.")
+        if not (self.level_weight >= 0.0 and 0.0 < self.level_width < self.tolerance):
+            raise ParameterError(f"level_weight must be >= 0 and level_width in (0, tolerance). Got "
+                                 f"{self.level_weight!r}, {self.level_width!r}; the defaults are 1.0 and 0.01.")
+        if not 0.0 <= self.viscosity_coefficient <= 0.2:
+            raise ParameterError(f"viscosity_coefficient must be in [0, 0.2] 1/K. Got {self.viscosity_coefficient!r}; "
+                                 "0.04 suits a mineral oil near 40 °C.")
         if isinstance(self.nominal, PlantParameters):
             return self.nominal
         return PlantParameters.from_dict(dict(self.nominal)) if self.nominal is not None else PlantParameters()
@@ -138,7 +178,7 @@ class ConditionFeatures:
             ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
             if ok.sum() < 2:
                 raise DataError(f"state '{state}' must have at least 2 valid windows. Got {int(ok.sum())}.")
-            sig = E.window_signals(w[ok], self.sensors, p)
+            sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient)
             fitted[state] = (sig, E.parity_estimates(sig, p))
         self.relations_ = fitted["healthy"][0].relations
         self.levels_ = {}
@@ -147,6 +187,7 @@ class ConditionFeatures:
             if fault is not None:
                 self.levels_[state] = float(np.median(fitted[state][1].severity[fault]))
         self.boxes_ = {state: self._box(state, p) for state in self.states_}
+        self.level_boxes_ = {state: self._box(state, p, narrow=True) for state in self.states_}
         sig, est = fitted["healthy"]
         healthy = E.relation_mse(sig, est, p, self.boxes_["healthy"])
         self.floors_ = {r: float(np.median(healthy[r])) for r in self.relations_}
@@ -155,17 +196,21 @@ class ConditionFeatures:
               kind=self.kind)
         return self
 
-    def _box(self, state: str, p: PlantParameters) -> dict[str, tuple[float, float]]:
+    def _box(self, state: str, p: PlantParameters, narrow: bool = False) -> dict[str, tuple[float, float]]:
+        """A state's band box, or with ``narrow`` its level box (module docstring)."""
         box = {}
         for other in FAULTS:
-            tol = self.tolerance * level_severity(other, "warning", p)
+            tol = (self.level_width if narrow else self.tolerance) * level_severity(other, "warning", p)
             box[other] = (-tol, tol)
         own, level = parse_state(state)
         if own is not None and level is not None:
-            named = level_severity(own, level, p)
-            lo, hi = (severity_for_speed_drop(own, d, p) / named for d in LEVEL_BANDS[level])
             s = self.levels_[state]
-            box[own] = (s * lo * (1.0 - BAND_MARGIN), s * hi * (1.0 + BAND_MARGIN))
+            if narrow:
+                box[own] = (s * (1.0 - self.level_width), s * (1.0 + self.level_width))
+            else:
+                named = level_severity(own, level, p)
+                lo, hi = (severity_for_speed_drop(own, d, p) / named for d in LEVEL_BANDS[level])
+                box[own] = (s * lo * (1.0 - BAND_MARGIN), s * hi * (1.0 + BAND_MARGIN))
         return box
 
     def _names(self) -> list[str]:
@@ -189,7 +234,7 @@ class ConditionFeatures:
         if not ok.any():
             return out
         p = self.nominal_
-        sig = E.window_signals(w[ok], self.sensors, p)
+        sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient)
         est = E.parity_estimates(sig, p)
         if self.kind == "severities":
             fits = [r for r in ("load", "motor") if r in self.relations_] + list(E.parity.VALVE_HYPOTHESES)
@@ -198,15 +243,38 @@ class ConditionFeatures:
                                                             for f in fits]
             out[ok] = np.stack(columns, axis=1)
             return out
+        out[ok] = self._ratios(sig, est, (self.boxes_,))[0]
+        return out
+
+    def transform_with_levels(self, windows: np.ndarray) -> np.ndarray:
+        """Band-box scores and level-box scores side by side, (n_windows, 2 · n_features); NaN rows invalid.
+
+        The first half holds the band-box ratios of :meth:`transform`; the second half the same
+        ratios with each state's level box (module docstring). ``ParityRule`` decides on both.
+        """
+        self._check_fitted()
+        w = E.check_windows(windows, self.window)
+        out = np.full((w.shape[0], 2 * len(self.feature_names_)), np.nan)
+        ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
+        if ok.any():
+            sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient)
+            out[ok] = np.concatenate(self._ratios(sig, E.parity_estimates(sig, self.nominal_),
+                                                  (self.boxes_, self.level_boxes_)), axis=1)
+        return out
+
+    def _ratios(self, sig: E.WindowSignals, est: E.ParityEstimates,
+                boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]) -> list[np.ndarray]:
+        """F[r, k] = MSE_r(box of k)/MSE_r(free) for each set of boxes, each (m, n_relations · n_states)."""
         cache: dict[tuple[str, float, float], np.ndarray] = {}
+        held = [[E.relation_mse(sig, est, self.nominal_, b[state], cache) for state in self.states_] for b in boxes]
+        # The free fit is the best of all fits tried (a held fit can beat a search stalled at a kink).
         free = {"load": est.mse["load"], "motor": est.mse["motor"],
-                "valve": np.min([est.mse[f] for f in E.parity.VALVE_HYPOTHESES], axis=0)}
-        scores = np.empty((int(ok.sum()), len(self.relations_), len(self.states_)))
-        for k, state in enumerate(self.states_):
-            mse = E.relation_mse(sig, est, p, self.boxes_[state], cache)
-            for i, r in enumerate(self.relations_):
-                scores[:, i, k] = mse[r] / np.maximum(free[r], 1e-300)
-        out[ok] = scores.reshape(scores.shape[0], -1)
+                "valve": np.min([est.mse[f] for f in E.parity.VALVE_HYPOTHESES] + list(cache.values()), axis=0)}
+        out = []
+        for mse in held:
+            scores = np.stack([np.stack([mse[k][r] / np.maximum(free[r], 1e-300) for k in range(len(self.states_))],
+                                        axis=1) for r in self.relations_], axis=1)
+            out.append(scores.reshape(scores.shape[0], -1))
         return out
 
     def severities(self, windows: np.ndarray) -> dict[str, np.ndarray]:
@@ -216,7 +284,8 @@ class ConditionFeatures:
         ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
         out = {f: np.full(w.shape[0], np.nan) for f in FAULTS}
         if ok.any():
-            est = E.parity_estimates(E.window_signals(w[ok], self.sensors, self.nominal_), self.nominal_)
+            sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient)
+            est = E.parity_estimates(sig, self.nominal_)
             for f in FAULTS:
                 out[f][ok] = est.severity[f]
         return out
@@ -224,20 +293,21 @@ class ConditionFeatures:
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:
         """Why each raw window (n_windows, window, 4) cannot be judged, or None.
 
-        Invalid: NaN/inf in the command or a used sensor (a gap, a dropped sensor), or a used
-        sensor constant over the window (stuck). A constant command is fine (a hold).
+        Invalid: NaN/inf in the command, a used sensor or the temperature channel (a gap, a dropped
+        sensor), or a used sensor constant over the window (stuck). A constant command or
+        temperature is fine (a hold, a warm machine).
         """
         w = E.check_windows(windows, self.window)
-        used = [0] + [1 + SENSORS.index(s) for s in self.sensors]
+        used = [0] + [1 + SENSORS.index(s) for s in self.sensors] + ([4] if w.shape[2] > 4 else [])
         reasons: list[str | None] = []
         for row in w:
             why = None
             for c in used:
                 bad = int((~np.isfinite(row[:, c])).sum())
                 if bad:
-                    why = f"{E.CHANNELS[c]}: {bad} NaN/inf samples in the window"
+                    why = f"{(*E.CHANNELS, E.TEMPERATURE)[c]}: {bad} NaN/inf samples in the window"
                     break
-                if c > 0 and np.ptp(row[:, c]) == 0.0:
+                if 0 < c < 4 and np.ptp(row[:, c]) == 0.0:
                     why = f"{E.CHANNELS[c]}: constant over the window (stuck sensor?)"
                     break
             reasons.append(why)
@@ -269,6 +339,7 @@ class ConditionFeatures:
             model.boxes_ = {k: {f: (float(b[0]), float(b[1])) for f, b in box.items()}
                             for k, box in data["boxes"].items()}
             model.floors_ = {k: float(v) for k, v in data["floors"].items()}
+            model.level_boxes_ = {k: model._box(k, model.nominal_, narrow=True) for k in model.states_}
         except (KeyError, TypeError, IndexError) as exc:
             raise DataError(f"condition features must have params, states, relations, levels, boxes and floors. "
                             f"Missing/bad: {exc}.") from None

@@ -4,9 +4,10 @@ Analogue of :class:`hydrowatch.health.model.HealthModel` working from raw window
 reference-model prediction errors. The decision is either
 
 - :class:`ParityRule` (default): the state whose physics explains the window best, the smallest
-  sum over relations of log F[r, k] (a generalised likelihood ratio for Gaussian residuals);
-  probabilities are softmax(−Σ_r log F[r, k] / T) with T fitted on the training windows
-  (temperature scaling, as the health classifier does); or
+  sum over relations of log F[r, k] + w·log F_level[r, k] (a generalised likelihood ratio for
+  Gaussian residuals, the level-box term a soft prior on the trained severity that breaks ties
+  of look-alike states in holds); probabilities are softmax(−score / T) with T fitted on the
+  training windows (temperature scaling, as the health classifier does); or
 - a :class:`hydrowatch.health.classifier.HealthClassifier` (the study's network, section 6.5) on
   the same features: it fits the training command perfectly but learns the pattern of the
   identification experiment's scores, which the bench shows does not carry to holds and ramps.
@@ -35,7 +36,15 @@ FILES = {"features": "condition_features.json", "rule": "decision.json", "classi
 
 
 class ParityRule:
-    """Nearest health state by parity scores: argmin_k Σ_r log F[r, k] (features relation-major).
+    """Nearest health state by parity scores: argmin_k Σ_r (log F[r, k] + w·log F_level[r, k]).
+
+    ``X`` is :meth:`ConditionFeatures.transform_with_levels`: band-box ratios then level-box
+    ratios, each relation-major.
+
+    Parameters
+    ----------
+    level_weight : float, default 1.0
+        w, the weight of the level-box ratios (0: band boxes only).
 
     Attributes
     ----------
@@ -44,16 +53,20 @@ class ParityRule:
         Softmax temperature of the probabilities, fitted on the training windows.
     """
 
+    def __init__(self, *, level_weight: float = 1.0) -> None:
+        self.level_weight = level_weight
+
     def get_params(self) -> dict[str, Any]:
-        """Constructor parameters (none)."""
-        return {}
+        """Constructor parameters."""
+        return {"level_weight": self.level_weight}
 
     def _logits(self, X: np.ndarray) -> np.ndarray:
         x = np.asarray(X, dtype=np.float64)
         n = len(self.classes_)
-        if x.ndim != 2 or x.shape[1] % n:
-            raise DataError(f"X must have shape (n, n_relations * {n}). Got {x.shape}.")
-        return -np.log(np.maximum(x, 1.0)).reshape(x.shape[0], -1, n).sum(axis=1)
+        if x.ndim != 2 or x.shape[1] % (2 * n):
+            raise DataError(f"X must have shape (n, 2 * n_relations * {n}) (band then level ratios). Got {x.shape}.")
+        band, level = np.split(-np.log(np.maximum(x, 1.0)).reshape(x.shape[0], -1, n), 2, axis=1)
+        return band.sum(axis=1) + self.level_weight * level.sum(axis=1)
 
     def fit(self, X: np.ndarray, y: Sequence[str] | np.ndarray, classes: Sequence[str]) -> ParityRule:
         """Fit the temperature on windows ``X`` (n, n_relations * n_states) of states ``y``; returns self."""
@@ -82,18 +95,38 @@ class ParityRule:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
-        return {"classes": self.classes_.tolist(), "temperature": self.temperature_}
+        return {"params": self.get_params(), "classes": self.classes_.tolist(), "temperature": self.temperature_}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ParityRule:
         """Inverse of :meth:`to_dict`."""
-        rule = cls()
         try:
+            rule = cls(**data.get("params", {}))
             rule.classes_ = np.asarray(data["classes"], dtype=str)
             rule.temperature_ = float(data["temperature"])
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"parity rule must have classes and temperature. Missing/bad: {exc}.") from None
         return rule
+
+
+class _BandColumns:
+    """The open-set rule seen through the band-box half of ``transform_with_levels`` (for :func:`judge`)."""
+
+    def __init__(self, rule: OpenSetRule) -> None:
+        self.rule = rule
+
+    @staticmethod
+    def _band(features: np.ndarray) -> np.ndarray:
+        f = np.atleast_2d(np.asarray(features, dtype=np.float64))
+        return f[:, : f.shape[1] // 2]
+
+    def score(self, features: np.ndarray) -> np.ndarray:
+        """Open-set score of the band-box ratios, shape (n,)."""
+        return self.rule.score(self._band(features))
+
+    def is_unknown(self, features: np.ndarray, probabilities: np.ndarray | None = None) -> np.ndarray:
+        """Rejection on the band-box ratios, shape (n,)."""
+        return self.rule.is_unknown(self._band(features), probabilities)
 
 
 class ConditionModel:
@@ -125,17 +158,18 @@ class ConditionModel:
         template = self.features or ConditionFeatures()
         self.features_ = ConditionFeatures(**{**template.get_params(), "kind": "scores"}).fit(windows_by_state)
         states = list(self.features_.states_)
-        blocks = [self.features_.transform(windows_by_state[s]) for s in states]
+        blocks = [self.features_.transform_with_levels(windows_by_state[s]) for s in states]
         X = np.concatenate(blocks)
         y = np.repeat(np.asarray(states), [b.shape[0] for b in blocks])
         valid = np.all(np.isfinite(X), axis=1)
         X, y = X[valid], y[valid]
         if self.classifier is None:
-            self.decision_: ParityRule | HealthClassifier = ParityRule().fit(X, y, states)
+            rule = ParityRule(level_weight=self.features_.level_weight)
+            self.decision_: ParityRule | HealthClassifier = rule.fit(X, y, states)
         else:
             self.decision_ = HealthClassifier(**self.classifier.get_params()).fit(X, y, classes=states)
-        rule = self.open_set or OpenSetRule(quantile=0.995, margin=3.0)
-        self.open_set_ = OpenSetRule(**rule.get_params()).fit(X, y, states)
+        template_rule = self.open_set or OpenSetRule(quantile=0.995, margin=3.0)
+        self.open_set_ = OpenSetRule(**template_rule.get_params()).fit(_BandColumns._band(X), y, states)
         return self
 
     def _check_fitted(self) -> None:
@@ -149,9 +183,9 @@ class ConditionModel:
     def judge(self, windows: np.ndarray) -> list[Verdict]:
         """Verdicts of raw windows, shape (n_windows, window, 4)."""
         self._check_fitted()
-        features = self.features_.transform(windows)
+        features = self.features_.transform_with_levels(windows)
         reasons = self.features_.window_reasons(windows)
-        return judge(features, cast(Any, self.decision_), self.open_set_, reasons)
+        return judge(features, cast(Any, self.decision_), cast(Any, _BandColumns(self.open_set_)), reasons)
 
     def score(self, rec_windows: np.ndarray, n_samples: int | None = None) -> tuple[np.ndarray, list[Verdict]]:
         """Window starts (sample index) and verdicts, like :meth:`HealthModel.score`.
