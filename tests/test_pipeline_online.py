@@ -28,7 +28,7 @@ COLUMNS = ("voltage", "flow", "speed", "torque")
 def bundle_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     seconds = PLAN.samples_per_state / 200 + 1
     grouped = {r.state: [r] for r in simulate_states(STATES, seconds=seconds, seed=0)}
-    result = train(grouped, TrainingSettings(reference="bj", plan=PLAN))
+    result = train(grouped, TrainingSettings(method="entropy", reference="bj", plan=PLAN))
     return result.bundle.save(tmp_path_factory.mktemp("bundle") / "model")
 
 
@@ -107,25 +107,30 @@ def test_gap_nan_and_out_of_order_invalidate_the_window(bundle_dir: Path, test_r
         assert not (v.start_s < 4.0 and v.end_s > 3.5) and not v.start_s <= 7.75 < v.end_s, (v.start_s, v.end_s)
 
 
-def test_scorer_service_over_loopback(bundle_dir: Path, test_recordings: list) -> None:
+def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], samples: int,
+                      want: int) -> tuple[int, dict[str, list], object]:
+    """Start the scorer service on ``model``, publish ``samples`` of each recording as 0.5 s chunks.
+
+    Returns the exit code, the health rows per machine (until ``want`` rows) and the first kl message.
+    """
     from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, wait_alive
     from hydrowatch.io.codec import sensor_chunk_from_arrays
     from hydrowatch.report.fleet_table import verdict_rows
 
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "services.scorer", "--model", str(bundle_dir), "--fleet", "t",
+    proc = subprocess.Popen([sys.executable, "-m", "services.scorer", "--model", str(model), "--fleet", "t",
                              "--bus-port", str(port)])
+    got: dict[str, list] = {}
     try:
         with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
                 Subscriber(session, "hydro/t/*/health") as health, Subscriber(session, "hydro/t/*/kl") as kl:
             assert wait_alive(session, "scorer", "t", 1, timeout=90), "scorer did not come up"
-            for start in range(0, 2400, 100):
-                for r in test_recordings[:2]:
-                    channels = {c: r[c][start:start + 100] for c in COLUMNS}
+            for start in range(0, samples, 100):
+                for r in recordings:
+                    channels = {c: r[c][start:start + 100] for c in columns}
                     pub.put(key("t", r.state, "sensors"), sensor_chunk_from_arrays(r.t[start:start + 100], channels))
-            got: dict[str, list] = {}
             deadline = time.monotonic() + 30
-            while time.monotonic() < deadline and sum(len(v) for v in got.values()) < 6:
+            while time.monotonic() < deadline and sum(len(v) for v in got.values()) < want:
                 message = health.recv(timeout=0.5)
                 if message is not None:
                     got.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
@@ -133,6 +138,11 @@ def test_scorer_service_over_loopback(bundle_dir: Path, test_recordings: list) -
     finally:
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(timeout=60)
+    return code, got, first_kl
+
+
+def test_scorer_service_over_loopback(bundle_dir: Path, test_recordings: list) -> None:
+    code, got, first_kl = scorer_round_trip(bundle_dir, test_recordings[:2], COLUMNS, 2400, 6)
     assert code == 0
     assert set(got) == {"healthy", "load_alert"}
     for machine, rows in got.items():

@@ -34,7 +34,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 def test_train_prints_summary_and_registers(trained: dict, capsys: pytest.CaptureFixture[str]) -> None:
     out = trained["root"] / "model"
-    assert main(["train", "--data", str(trained["data"]), "--out", str(out), "--reference", "bj",
+    assert main(["train", "--data", str(trained["data"]), "--out", str(out), "--method", "entropy", "--reference", "bj",
                  "--tracking-uri", trained["uri"], "--experiment", "test"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["states"][0] == "healthy" and set(summary["states"]) == set(STATES)

@@ -1,9 +1,10 @@
 """``hydrowatch demo``: the whole pipeline on one machine with embedded defaults (``make demo``).
 
-Simulates identification data, trains Box-Jenkins and NARX bundles (MLflow), measures accuracy on
-other seeds and commands, runs a live fleet with faults appearing through recorder and scorer
-processes on a loopback bus with the live table, and writes ``<out>/report.html``. The defaults
-finish in a few minutes on 2 cores; ``--full-plan`` and ``--narx 15,15,35`` give the study's sizes.
+Simulates identification data, trains a parity bundle and the study's method with Box-Jenkins and
+NARX reference models (MLflow), measures accuracy on other seeds and commands, runs a live fleet
+with faults appearing through recorder and scorer processes on a loopback bus with the live table,
+and writes ``<out>/report.html``. The defaults finish in a few minutes on 2 cores; ``--full-plan``
+and ``--narx 15,15,35`` give the study's sizes.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ HELP = "run the whole pipeline on embedded defaults and write an HTML report"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--out``, sizes, and the training flags (``--reference`` is ignored: both kinds are trained)."""
+    """``--out``, sizes, and the training flags (``--method``/``--reference`` are ignored: all three are trained)."""
     parser.add_argument("--out", type=Path, default=Path("demo"), help="output folder (default demo)")
     parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default sqlite:///<cwd>/mlruns/…)")
     parser.add_argument("--live-seconds", type=float, default=100.0, help="simulated seconds of the live fleet")
@@ -36,7 +37,9 @@ def run(args: argparse.Namespace) -> int:
 
     base = settings_from_args(args)
     settings = DemoSettings(
-        out=args.out, training={"bj": replace(base, reference="bj"), "narx": replace(base, reference="narx")},
+        out=args.out, training={"parity": replace(base, method="parity"),
+                                "bj": replace(base, method="entropy", reference="bj"),
+                                "narx": replace(base, method="entropy", reference="narx")},
         tracking=args.tracking_uri, seed=args.seed, accuracy_seconds=args.accuracy_seconds,
         live_seconds=args.live_seconds, speed=args.speed)
     summary = run_demo(settings, show=sys.stderr.isatty())

@@ -1,7 +1,9 @@
-"""``hydrowatch train``: fit reference models, base distributions and the classifier; track in MLflow.
+"""``hydrowatch train``: fit a health model (parity or the study's entropy method); track in MLflow.
 
-Prints a JSON summary (version, states, NRMSE per sensor, test accuracy, per-class recall, MLflow
-run id and registered model URI). The work is :func:`hydrowatch.training.pipeline.train_and_track`.
+Prints one JSON summary per trained bundle (version, method, states, NRMSE per sensor for the
+entropy method, test accuracy, per-class recall, MLflow run id and registered model URI, and with
+``--check-seconds`` the accuracy on other commands). ``--method both`` trains ``OUT/entropy`` and
+``OUT/parity`` as two runs to compare. The work is :func:`hydrowatch.training.pipeline.train_each`.
 """
 
 from __future__ import annotations
@@ -10,28 +12,30 @@ import argparse
 import json
 from pathlib import Path
 
-from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_from_args
+from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_list_from_args
 
 NAME = "train"
-HELP = "train reference models + health model from labelled recordings; log to MLflow and register the bundle"
+HELP = "train the health model (parity, entropy or both) from labelled recordings; log to MLflow and register it"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--data DIR --out MODEL_DIR`` plus training and MLflow flags."""
     parser.add_argument("--data", required=True, type=Path, help="labelled recordings (folder or file)")
-    parser.add_argument("--out", required=True, type=Path, help="model bundle folder to write")
+    parser.add_argument("--out", required=True, type=Path,
+                        help="model bundle folder to write (--method both: OUT/entropy and OUT/parity)")
     parser.add_argument("--report", type=Path, default=None, help="also keep the plots and tables in this folder")
     add_training_arguments(parser)
     add_tracking_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train, save, log; print the JSON summary; returns 0."""
-    from hydrowatch.training.pipeline import train_and_track
+    """Train, save, log; print the JSON summaries; returns 0."""
+    from hydrowatch.training.pipeline import train_each
 
-    _, summary = train_and_track(
-        args.data, args.out, settings_from_args(args), tracking=args.tracking_uri, experiment=args.experiment,
-        model_name=None if args.no_register else args.model_name, alias=args.alias, report_dir=args.report,
-    )
-    print(json.dumps(summary))
+    for summary in train_each(
+        args.data, args.out, settings_list_from_args(args), report_dir=args.report, tracking=args.tracking_uri,
+        experiment=args.experiment, model_name=None if args.no_register else args.model_name, alias=args.alias,
+        check_seconds=args.check_seconds,
+    ):
+        print(json.dumps(summary), flush=True)
     return 0

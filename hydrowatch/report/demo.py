@@ -15,9 +15,10 @@ from hydrowatch.training.trainer import TrainingResult
 def accuracy_section(accuracy: Mapping[str, list[dict[str, Any]]]) -> Section:
     """Accuracy of every bundle on separately simulated recordings, one confusion matrix per command."""
     section = Section("Accuracy on recordings made apart from the training data").text(
-        "Every trained state simulated again with another seed, once with the training command (filtered noise "
-        "0-4 V) and once with a working duty cycle (holds, ramps, steps). Windows judged 'unknown' count as wrong.")
-    section.table(["reference", "command", "accuracy", "windows"],
+        "Every trained state simulated again with another seed, with the training command (filtered noise "
+        "0-4 V), a working duty cycle (holds, ramps, steps) and filtered noise on a narrow range (1-3 V). "
+        "Windows judged 'unknown' count as wrong.")
+    section.table(["model", "command", "accuracy", "windows"],
                   [[kind, a["command"], a["accuracy"], a["windows"]] for kind, runs in accuracy.items() for a in runs])
     for kind, runs in accuracy.items():
         for a in runs:
@@ -47,9 +48,9 @@ def write_demo_report(path: str | Path, results: Mapping[str, TrainingResult],
     """Write the demo's HTML report; returns its path."""
     states = next(iter(results.values())).bundle.states
     sections = [Section("Summary").text(
-        f"Two reference-model pipelines were trained and tracked in MLflow; '{champion}' holds the registry alias "
-        "'champion' and scores the live fleet.")]
-    sections += [training_section(r, f"Training: {kind} reference models") for kind, r in results.items()]
+        f"{len(results)} health models were trained and tracked in MLflow ({', '.join(results)}); '{champion}', the "
+        "best on the working duty cycle, holds the registry alias 'champion' and scores the live fleet.")]
+    sections += [training_section(r, f"Training: {kind}") for kind, r in results.items()]
     sections.append(accuracy_section(accuracy))
     sections.append(fleet_section(live, states))
     return write_html(path, "hydrowatch demo", sections)

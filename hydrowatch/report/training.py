@@ -1,5 +1,10 @@
 """Artifacts of a training run: plots, the relative-entropy table (as table 6.1), evaluation JSON.
 
+For a parity run the table holds the median relation scores (rows: relations) instead, and the
+reference-model plots (error distributions, residual correlations, pole-zero maps) are left out.
+Accuracy checks on other commands (``evaluation["checks"]``, see
+:func:`hydrowatch.training.pipeline.train_and_track`) add one confusion matrix each.
+
 :func:`write_training_artifacts` writes them into a folder (MLflow logs the folder under
 ``report/``); :func:`training_section` gives the same material as an HTML report section.
 """
@@ -19,26 +24,38 @@ from hydrowatch.report.plots import confusion_png, correlations_png, error_distr
 from hydrowatch.training.trainer import TrainingResult
 
 
+def run_name(result: TrainingResult) -> str:
+    """``parity``, or the reference kind (``narx``, ``bj``) of an entropy run."""
+    return "parity" if result.bundle.method == "parity" else str(result.bundle.manifest["reference"])
+
+
 def entropy_table(result: TrainingResult) -> tuple[list[str], list[list[Any]]]:
     """Median relative entropy of each state's classifier windows against every base state, nats.
 
     Rows: (true state, sensor); columns: the base states. The row of one true state is the
-    study's table 6.1 (there for one window of ``load_alert``).
+    study's table 6.1 (there for one window of ``load_alert``). Parity runs: (true state,
+    relation) rows of median relation scores of the test windows.
     """
     states = result.bundle.states
     rows = []
     for true_state, d in result.window_entropies.items():
-        for j, sensor in enumerate(result.bundle.sensors):
-            rows.append([true_state, sensor, *np.nanmedian(d[:, j, :], axis=0).tolist()])
-    return ["window state", "sensor", *states], rows
+        for j, row in enumerate(result.bundle.kl_rows):
+            median = np.nanmedian(d[:, j, :], axis=0).tolist() if d.shape[0] else [float("nan")] * len(states)
+            rows.append([true_state, row, *median])
+    return ["window state", "relation" if result.bundle.method == "parity" else "sensor", *states], rows
 
 
 def _pictures(result: TrainingResult) -> dict[str, bytes]:
-    sensors = result.bundle.sensors
     ev = result.evaluation
-    title = f"Test windows ({ev['test_windows']}), {result.bundle.manifest['reference']}"
+    title = f"Test windows ({ev['test_windows']}), {run_name(result)}"
     out = {"confusion_matrix.png": confusion_png(ev["confusion_matrix"], ev["labels"], title)}
-    for j, sensor in enumerate(sensors):
+    for check in ev.get("checks", []):
+        out[f"confusion_{check['command']}.png"] = confusion_png(
+            check["confusion_matrix"], check["labels"], f"{run_name(result)}, {check['command']} command, "
+                                                        f"seed {check['seed']}")
+    if result.bundle.method == "parity":
+        return out
+    for j, sensor in enumerate(result.bundle.sensors):
         out[f"errors_{sensor}.png"] = error_distributions_png(
             {s: e[:, j] for s, e in result.base_errors.items()}, sensor, UNITS[sensor])
     out["residual_correlations.png"] = correlations_png({s: r["correlations"] for s, r in result.reference.items()})
@@ -61,7 +78,7 @@ def write_training_artifacts(result: TrainingResult, folder: str | Path) -> list
         writer = csv.writer(fh)
         writer.writerow(header)
         writer.writerows(rows)
-    (d / "evaluation.json").write_text(json.dumps(result.evaluation, indent=1))
+    (d / "evaluation.json").write_text(json.dumps(result.evaluation, indent=1, default=float))
     (d / "reference.json").write_text(json.dumps(result.reference, indent=1, default=str))
     return [*files, d / "relative_entropy.csv", d / "evaluation.json", d / "reference.json"]
 
@@ -69,16 +86,24 @@ def write_training_artifacts(result: TrainingResult, folder: str | Path) -> list
 def training_section(result: TrainingResult, title: str) -> Section:
     """An HTML section with the training run's numbers, tables and plots."""
     ev = result.evaluation
-    section = Section(title).text(
-        f"Reference models: {result.bundle.manifest['reference']}; test accuracy {ev['test_accuracy']:.4f} on "
-        f"{ev['test_windows']} held-out windows; training took {result.seconds:.0f} s.")
-    section.table(["sensor", "NRMSE one step", "residual acf inside bound", "ccf inside bound"],
-                  [[s, r["nrmse_one_step"], r["correlations"]["acf_inside"], r["correlations"]["ccf_inside"]]
-                   for s, r in result.reference.items()])
+    if result.bundle.method == "parity":
+        section = Section(title).text(
+            f"Parity method (component relations); test accuracy {ev['test_accuracy']:.4f} on {ev['test_windows']} "
+            f"held-out windows; training took {result.seconds:.0f} s.")
+        caption = ("Median relation score F[r, k] of each state's test windows (1: state k's physics explains the "
+                   "relation as well as a free fit):")
+    else:
+        section = Section(title).text(
+            f"Reference models: {result.bundle.manifest['reference']}; test accuracy {ev['test_accuracy']:.4f} on "
+            f"{ev['test_windows']} held-out windows; training took {result.seconds:.0f} s.")
+        section.table(["sensor", "NRMSE one step", "residual acf inside bound", "ccf inside bound"],
+                      [[s, r["nrmse_one_step"], r["correlations"]["acf_inside"], r["correlations"]["ccf_inside"]]
+                       for s, r in result.reference.items()])
+        caption = ("Median relative entropy of each state's windows against every base distribution (nats), "
+                   "as the study's table 6.1:")
     section.table(["state", "recall"], [[s, r] for s, r in ev["per_class_recall"].items()])
     header, rows = entropy_table(result)
-    section.text("Median relative entropy of each state's windows against every base distribution (nats), "
-                 "as the study's table 6.1:")
+    section.text(caption)
     section.table(header, rows)
     for name, png in _pictures(result).items():
         section.image(png, name)

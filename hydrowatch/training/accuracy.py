@@ -1,8 +1,9 @@
 """Accuracy of a bundle on recordings made apart from its training data (another seed, other commands).
 
-Two kinds of command, as in issue 5: ``"training"`` (the study's filtered noise on 0-4 V, like the
-identification data) and ``"duty_cycle"`` (holds, ramps and steps,
-:func:`hydrowatch.plant.excitation.duty_cycle`), the same command driving every state.
+Three kinds of command, as in issue 5: ``"training"`` (the study's filtered noise on 0-4 V, like
+the identification data), ``"duty_cycle"`` (holds, ramps and steps on 0-4 V,
+:func:`hydrowatch.plant.excitation.duty_cycle`, the same command driving every state) and
+``"narrow_range"`` (filtered noise on another range, 1-3 V). Either method's bundle.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.scoring import pooled_accuracy, score_recording
 
-COMMANDS = ("training", "duty_cycle")
+COMMANDS = ("training", "duty_cycle", "narrow_range")
+NARROW_VOLTS = (1.0, 3.0)
+"""Voltage range of the ``narrow_range`` command, V."""
 
 
 def measure_accuracy(
@@ -39,7 +42,8 @@ def measure_accuracy(
         raise ParameterError(f"command must be one of {COMMANDS}. Got {command!r}.")
     states = list(states or bundle.states)
     voltage = duty_cycle(seconds, seed=seed) if command == "duty_cycle" else None
-    recordings = simulate_states(states, seconds=seconds, command=voltage, seed=seed, fleet="accuracy")
+    volts = NARROW_VOLTS if command == "narrow_range" else (0.0, 4.0)
+    recordings = simulate_states(states, seconds=seconds, volts=volts, command=voltage, seed=seed, fleet="accuracy")
     results = [score_recording(bundle, r) for r in recordings]
     accuracy, truth, verdict = pooled_accuracy(results)
     labels = [*states, UNKNOWN]
@@ -48,3 +52,13 @@ def measure_accuracy(
         "per_class_recall": per_class_recall(np.asarray(truth), np.asarray(verdict), states),
         "labels": labels, "confusion_matrix": confusion_matrix(np.asarray(truth), np.asarray(verdict), labels).tolist(),
     }
+
+
+def accuracy_metrics(checks: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """MLflow metrics of :func:`measure_accuracy` results: ``accuracy.<command>`` and ``recall.<command>.<state>``."""
+    out: dict[str, float] = {}
+    for a in checks:
+        if a["accuracy"] is not None:
+            out[f"accuracy.{a['command']}"] = float(a["accuracy"])
+        out.update({f"recall.{a['command']}.{s}": float(r) for s, r in a["per_class_recall"].items()})
+    return out

@@ -1,11 +1,14 @@
-"""A model bundle: reference models + health model + a JSON manifest, in one directory.
+"""A model bundle: the health method's fitted parts + a JSON manifest, in one directory.
 
 Layout::
 
     MODEL_DIR/
-      manifest.json         format, version, reference kind, states, sensors, window, data summary, metrics
-      reference/<sensor>.narx.pt | <sensor>.bj.json
+      manifest.json         format, version, method, reference kind, states, sensors, window, data, metrics
+      reference/<sensor>.narx.pt | <sensor>.bj.json      method "entropy": reference models
       health/               base_distributions.json, classifier.npz, open_set.json
+      condition/            method "parity": condition_features.json, decision.json, open_set.json
+
+A manifest without ``method`` (written before the parity method existed) is an ``entropy`` bundle.
 
 A bundle is loaded from its directory or from the MLflow model registry (``models:/NAME@ALIAS``
 or ``models:/NAME/VERSION``; the tracking URI as in :func:`hydrowatch.training.tracking.tracking_uri`).
@@ -21,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition import ConditionModel
 from hydrowatch.errors import DataError
 from hydrowatch.health.model import HealthModel
 from hydrowatch.recording import INPUT, Recording
@@ -38,32 +42,67 @@ class ModelBundle:
     Attributes
     ----------
     references : dict of str to SensorReference
-        One fitted reference model per sensor, in sensor order.
-    health : HealthModel
-        Fitted base distributions, classifier and open-set rule.
+        One fitted reference model per sensor, in sensor order (empty for the parity method).
+    health : HealthModel or None
+        Fitted base distributions, classifier and open-set rule (entropy method).
     manifest : dict
-        ``format``, ``format_version``, ``version``, ``reference``, ``states``, ``sensors``,
-        ``window`` (samples), ``hop``, ``warmup``, ``data`` and ``metrics``.
+        ``format``, ``format_version``, ``version``, ``method``, ``reference``, ``states``,
+        ``sensors``, ``window`` (samples), ``hop``, ``warmup``, ``data`` and ``metrics``.
+    condition : ConditionModel or None
+        Fitted parity features, decision and open-set rule (parity method).
     """
 
     references: dict[str, SensorReference]
-    health: HealthModel
+    health: HealthModel | None
     manifest: dict[str, Any] = field(default_factory=dict)
+    condition: ConditionModel | None = None
+
+    @property
+    def method(self) -> str:
+        """``parity`` or ``entropy``."""
+        return "parity" if self.condition is not None else "entropy"
 
     @property
     def sensors(self) -> list[str]:
-        """Sensors in the order of the prediction-error columns."""
+        """Sensors the model reads, in the order of the prediction-error columns (entropy)."""
+        if self.condition is not None:
+            return list(self.condition.features_.sensors)
         return list(self.references)
 
     @property
+    def kl_rows(self) -> list[str]:
+        """Rows of a window's ``kl`` scores: sensors (relative entropies) or relations (parity scores)."""
+        if self.condition is not None:
+            return list(self.condition.features_.relations_)
+        return self.sensors
+
+    @property
     def states(self) -> list[str]:
-        """Trained health states, in the classifier's order."""
-        return list(self.health.features_.states_)
+        """Trained health states, in the decision's order."""
+        if self.condition is not None:
+            return list(self.condition.features_.states_)
+        return list(self._health.features_.states_)
+
+    @property
+    def window(self) -> int:
+        """Samples per window."""
+        return int((self.condition.features_ if self.condition is not None else self._health.features_).window)
+
+    @property
+    def hop(self) -> int:
+        """Samples between window starts."""
+        return int((self.condition.features_ if self.condition is not None else self._health.features_).hop)
 
     @property
     def warmup(self) -> int:
-        """Samples before every sensor's prediction errors count."""
-        return max(r.warmup_ for r in self.references.values())
+        """Samples before every sensor's prediction errors count (0 for the parity method)."""
+        return max((r.warmup_ for r in self.references.values()), default=0)
+
+    @property
+    def _health(self) -> HealthModel:
+        if self.health is None:
+            raise DataError("an entropy bundle must hold a health model. Got none; retrain with `hydrowatch train`.")
+        return self.health
 
     @property
     def version(self) -> str:
@@ -78,13 +117,19 @@ class ModelBundle:
     def save(self, directory: str | Path) -> Path:
         """Write the bundle; the manifest's ``version`` becomes a hash of the model files."""
         d = Path(directory)
-        (d / "reference").mkdir(parents=True, exist_ok=True)
-        files = [ref.save(d / "reference") for ref in self.references.values()]
-        self.health.save(d / "health")
+        d.mkdir(parents=True, exist_ok=True)
+        if self.condition is not None:
+            self.condition.save(d / "condition")
+            files = list((d / "condition").iterdir())
+        else:
+            (d / "reference").mkdir(parents=True, exist_ok=True)
+            files = [ref.save(d / "reference") for ref in self.references.values()]
+            self._health.save(d / "health")
+            files += list((d / "health").iterdir())
         digest = hashlib.sha256()
-        for f in sorted([*files, *(d / "health").iterdir()]):
+        for f in sorted(files):
             digest.update(f.read_bytes())
-        self.manifest.update({"format": FORMAT, "format_version": FORMAT_VERSION,
+        self.manifest.update({"format": FORMAT, "format_version": FORMAT_VERSION, "method": self.method,
                               "version": f"sha256:{digest.hexdigest()[:12]}"})
         (d / MANIFEST).write_text(json.dumps(self.manifest, indent=1, default=_plain))
         return d
@@ -103,10 +148,12 @@ class ModelBundle:
                 f"v{manifest.get('format_version')}. Retrain with `hydrowatch train`.",
                 str(d),
             )
-        kind = manifest["reference"]
-        references = {s: SensorReference.load(d / "reference", s, kind) for s in manifest["sensors"]}
         if version is not None:
             manifest["version"] = version
+        if manifest.get("method", "entropy") == "parity":
+            return cls({}, None, manifest, ConditionModel.load(d / "condition"))
+        kind = manifest["reference"]
+        references = {s: SensorReference.load(d / "reference", s, kind) for s in manifest["sensors"]}
         return cls(references, HealthModel.load(d / "health"), manifest)
 
 

@@ -30,8 +30,13 @@ def verdict_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch:
 def kl_batch(
     item: WindowVerdict, sensors: Sequence[str], states: Sequence[str], model_version: str
 ) -> pa.RecordBatch | None:
-    """The ``kl_window`` rows (sensor × state) of a judged window; None when it has no finite entropies."""
-    d = item.entropies
+    """The ``kl_window`` rows (sensor × state) of a judged window; None when it has no finite scores.
+
+    ``sensors`` are the bundle's ``kl_rows``: sensors for the entropy method (``relative_entropy``
+    in nats), relations (``load``, ``motor``, ``valve``) for the parity method (``relative_entropy``
+    then carries the relation score F[r, k], dimensionless, ≥ 1).
+    """
+    d = item.scores
     if d is None or item.verdict.state == INVALID or not np.all(np.isfinite(d)):
         return None
     n = len(sensors) * len(states)

@@ -1,34 +1,39 @@
 """Online scoring of a fleet, chunk by chunk (river style: ``update`` feeds, nothing is re-read).
 
-Per machine the scorer keeps the reference models' stream states (delay lines or filter states,
+Per machine the scorer keeps what the bundle's method needs (:mod:`hydrowatch.training.engines`):
+for the entropy method the reference models' stream states (delay lines or filter states,
 :class:`~hydrowatch.training.reference.StreamState`) and a :class:`~hydrowatch.health.streaming.MachineWindow`
-of prediction errors; when a window closes its relative entropies go to the classifier and the
-open-set rule. All machines' chunks of equal length are predicted in one batched call per sensor,
-and all windows that close in one :meth:`OnlineScorer.update` are judged in one call.
+of prediction errors, whose closed windows' relative entropies go to the classifier and the
+open-set rule; for the parity method a window of raw samples judged by the condition model. All
+machines' segments of equal length are processed in one batched call, and all windows that close
+in one :meth:`OnlineScorer.update` are judged in one call.
 
 A stream breaks, and the window in progress is published as ``invalid`` with its reason instead of
 producing a wrong verdict, when a chunk
 
 * leaves a gap (its first sample is later than one sample after the previous chunk's last),
 * arrives late or out of order (its first sample is not after the previous chunk's last),
-* has NaN in the voltage or a sensor (the NaN samples are skipped),
+* has NaN in the voltage or a sensor the method reads (the NaN samples are skipped),
 * is irregular inside (sample spacing off 1/200 s).
 
-After a break the stream restarts: the reference models warm up again (``bundle.warmup`` samples)
-and windows are counted from the first sample after the warm-up.
+After a break the stream restarts: the reference models warm up again (``bundle.warmup`` samples,
+none for the parity method) and windows are counted from the first sample after the warm-up.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
+import pyarrow as pa
 
-from hydrowatch.health.streaming import MachineWindow, WindowResult
-from hydrowatch.health.verdict import INVALID, Verdict, judge
-from hydrowatch.recording import INPUT, SAMPLE_RATE_HZ
+from hydrowatch.health.streaming import MachineWindow
+from hydrowatch.health.verdict import INVALID, Verdict
+from hydrowatch.recording import SAMPLE_RATE_HZ
 from hydrowatch.training.bundle import ModelBundle
+from hydrowatch.training.engines import RawWindow, engine_for
 from hydrowatch.training.reference import StreamState
 
 DT = 1.0 / SAMPLE_RATE_HZ
@@ -47,12 +52,38 @@ class Chunk:
     t : ndarray, shape (n,)
         Sample times, s.
     channels : mapping of str to ndarray, shape (n,)
-        At least ``voltage`` [V] and the bundle's sensors.
+        At least ``voltage`` [V] and the bundle's sensors (and ``temperature`` [°C] when a parity
+        bundle uses it; 40 °C is assumed when missing).
     """
 
     machine: str
     t: np.ndarray
     channels: Mapping[str, np.ndarray]
+
+
+def chunks_from_batches(machines: Sequence[str], batches: Sequence[pa.RecordBatch],
+                        columns: Sequence[str]) -> list[Chunk]:
+    """:class:`Chunk` s of ``sensor_chunk`` batches with only ``columns`` read (float64; nulls become NaN).
+
+    Batches with the same schema are converted together, one Arrow → NumPy conversion per column
+    for all of them (the chunks are views into it): the per-chunk conversion cost is what limits
+    the fleet one scorer keeps up with. Columns a batch lacks are left out (the scorer then uses
+    its default or breaks the stream); the label column is never read.
+    """
+    groups: dict[pa.Schema, list[int]] = {}
+    for i, batch in enumerate(batches):
+        groups.setdefault(batch.schema, []).append(i)
+    out: list[Chunk | None] = [None] * len(batches)
+    for schema, members in groups.items():
+        names = ["t", *[c for c in columns if c in schema.names]]
+        arrays = {c: pa.concat_arrays([batches[i].column(c) for i in members]).to_numpy(zero_copy_only=False)
+                  for c in names}
+        stops = np.cumsum([batches[i].num_rows for i in members]).tolist()
+        start = 0
+        for i, stop in zip(members, stops):
+            out[i] = Chunk(machines[i], arrays["t"][start:stop], {c: arrays[c][start:stop] for c in names[1:]})
+            start = stop
+    return [c for c in out if c is not None]
 
 
 @dataclass
@@ -65,21 +96,22 @@ class WindowVerdict:
     start_s, end_s : float
         Time of the window's first sample and just after its last, s (recording time base).
     verdict : Verdict
-    entropies : ndarray, shape (n_sensors, n_states), or None
-        Relative entropies, nats (None for a window cut short by a break).
+    scores : ndarray, shape (n_rows, n_states), or None
+        The window's ``kl`` scores (None for a window cut short by a break): relative entropies
+        per sensor, nats (entropy method), or relation scores per relation (parity method).
     """
 
     machine: str
     start_s: float
     end_s: float
     verdict: Verdict
-    entropies: np.ndarray | None = None
+    scores: np.ndarray | None = None
 
 
 @dataclass
 class _Stream:
     states: list[StreamState]
-    window: MachineWindow
+    window: MachineWindow | RawWindow
     next_t: float | None = None
     start_t: float | None = None
     """Time of the first sample of the stream (warm-up included)."""
@@ -116,18 +148,24 @@ class OnlineScorer:
     Parameters
     ----------
     bundle : ModelBundle
-        Reference models and health model.
+        Either method's bundle.
     keep : int, default 4
-        Closed windows each machine keeps (only the unreported ones are read).
+        Closed windows each machine keeps (entropy method; only the unreported ones are read).
     """
 
     def __init__(self, bundle: ModelBundle, *, keep: int = 4) -> None:
         self.bundle = bundle
         self.keep = keep
         self._streams: dict[str, _Stream] = {}
-        self._columns = [INPUT, *bundle.sensors]
+        self._engine = engine_for(bundle, keep=keep)
+        self._columns = self._engine.columns
         self.samples = 0
         """Samples fed so far, over every machine."""
+
+    @property
+    def columns(self) -> list[str]:
+        """Channels the bundle's method reads from every chunk."""
+        return list(self._columns)
 
     @property
     def machines(self) -> list[str]:
@@ -135,13 +173,15 @@ class OnlineScorer:
         return list(self._streams)
 
     def _new_stream(self) -> _Stream:
-        refs = self.bundle.references.values()
-        return _Stream([r.initial_state() for r in refs], MachineWindow(self.bundle.health.features_, keep=self.keep))
+        return _Stream(self._engine.new_states(), self._engine.new_window())
 
     def _plan(self, stream: _Stream, chunk: Chunk) -> _Plan:
         """Cut a chunk into clean segments and the breaks between them."""
         t = np.asarray(chunk.t, dtype=np.float64)
-        x = np.column_stack([np.asarray(chunk.channels[c], dtype=np.float64) for c in self._columns])
+        x = np.empty((t.size, len(self._columns)))
+        for j, c in enumerate(self._columns):
+            column = chunk.channels.get(c)
+            x[:, j] = self._engine.defaults[c] if column is None and c in self._engine.defaults else column
         plan = _Plan()
         if t.size == 0:
             return plan
@@ -171,11 +211,49 @@ class OnlineScorer:
         stream.next_t = float(t[-1] + DT) if np.isfinite(t[-1]) else stream.next_t
         return plan
 
+    def _plans(self, chunks: Sequence[Chunk]) -> dict[str, list[_Feed | _Break]]:
+        """Every machine's segments and breaks; clean chunks are checked together (one array per length).
+
+        A chunk is clean when it is its machine's only chunk in the update, has every column,
+        only finite values, regular spacing and follows the previous chunk: it becomes one segment
+        without going through :meth:`_plan` (the per-chunk Python cost is what limits the fleet size).
+        """
+        plans: dict[str, list[_Feed | _Break]] = {}
+        count: dict[str, int] = {}
+        for chunk in chunks:
+            count[chunk.machine] = count.get(chunk.machine, 0) + 1
+            if chunk.machine not in self._streams:
+                self._streams[chunk.machine] = self._new_stream()
+        groups: dict[int, list[Chunk]] = {}
+        for chunk in chunks:
+            if count[chunk.machine] == 1 and all(c in chunk.channels for c in self._columns):
+                groups.setdefault(len(chunk.t), []).append(chunk)
+        fast: dict[str, _Feed] = {}
+        for n, group in groups.items():
+            if n < 2:
+                continue
+            t = np.asarray(np.stack([c.t for c in group]), dtype=np.float64)  # (M, n)
+            x = np.stack([np.stack([c.channels[k] for c in group]) for k in self._columns], axis=2)  # (M, n, width)
+            expected = np.array([np.nan if (nt := self._streams[c.machine].next_t) is None else nt for c in group])
+            clean = (np.isfinite(x).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
+                     & (np.abs(np.diff(t, axis=1) - DT) <= TOLERANCE).all(axis=1)
+                     & (np.isnan(expected) | (np.abs(t[:, 0] - expected) <= TOLERANCE)))
+            for i in np.flatnonzero(clean).tolist():
+                fast[group[i].machine] = _Feed(t[i], x[i])
+                self._streams[group[i].machine].next_t = float(t[i, -1] + DT)
+        for chunk in chunks:
+            feed = fast.get(chunk.machine)
+            if feed is not None:
+                plans[chunk.machine] = [feed]
+            else:
+                plans.setdefault(chunk.machine, []).extend(self._plan(self._streams[chunk.machine], chunk).ops)
+        return plans
+
     def _break(self, machine: str, stream: _Stream, op: _Break) -> tuple[_Stream, WindowVerdict | None]:
         """Restart the stream; the window in progress becomes an invalid verdict."""
         out = None
         if stream.seen:
-            begun = stream.window.n_windows * int(self.bundle.health.features_.hop)
+            begun = stream.window.n_windows * self._engine.hop
             if stream.fed_t is not None and stream.fed > begun:
                 start = stream.fed_t + begun * DT
             elif stream.fed_t is None and stream.start_t is not None:
@@ -193,17 +271,9 @@ class OnlineScorer:
         by_length: dict[int, list[tuple[str, _Stream, _Feed]]] = {}
         for job in jobs:
             by_length.setdefault(job[2].t.size, []).append(job)
-        refs = list(self.bundle.references.values())
         for group in by_length.values():
-            u = np.stack([f.x[:, 0] for _, _, f in group])
-            errors = []
-            for j, ref in enumerate(refs):
-                y = np.stack([f.x[:, 1 + j] for _, _, f in group])
-                e, new = ref.step(u, y, [s.states[j] for _, s, _ in group])
-                for (_, s, _), state in zip(group, new):
-                    s.states[j] = state
-                errors.append(e)
-            stacked = np.stack(errors, axis=2)  # (M, n, n_sensors)
+            x = np.stack([f.x for _, _, f in group])
+            stacked = self._engine.values(x, [s.states for _, s, _ in group])  # (M, n, width)
             for i, (_, stream, feed) in enumerate(group):
                 if stream.start_t is None:
                     stream.start_t = float(feed.t[0])
@@ -221,14 +291,9 @@ class OnlineScorer:
 
     def update(self, chunks: Sequence[Chunk]) -> list[WindowVerdict]:
         """Feed chunks of any machines (in arrival order); returns the verdicts of the windows they close."""
-        plans: dict[str, list[_Feed | _Break]] = {}
-        for chunk in chunks:
-            stream = self._streams.get(chunk.machine)
-            if stream is None:
-                stream = self._streams[chunk.machine] = self._new_stream()
-            plans.setdefault(chunk.machine, []).extend(self._plan(stream, chunk).ops)
+        plans = self._plans(chunks)
         out: list[WindowVerdict] = []
-        closed: list[tuple[str, WindowResult, float]] = []
+        closed: list[tuple[str, Any, float]] = []
         while plans:
             jobs = []
             for machine in list(plans):
@@ -251,17 +316,16 @@ class OnlineScorer:
                 self._collect(machine, closed)
         return out + self._judge(closed)
 
-    def _collect(self, machine: str, closed: list[tuple[str, WindowResult, float]]) -> None:
+    def _collect(self, machine: str, closed: list[tuple[str, Any, float]]) -> None:
         stream = self._streams[machine]
         if stream.window.n_windows > stream.reported and stream.fed_t is not None:
-            closed.extend((machine, r, stream.fed_t) for r in stream.window.since(stream.reported))
+            closed.extend((machine, r, stream.fed_t) for r in self._engine.collect(cast(Any, stream.window),
+                                                                                  stream.reported))
             stream.reported = stream.window.n_windows
 
-    def _judge(self, closed: list[tuple[str, WindowResult, float]]) -> list[WindowVerdict]:
+    def _judge(self, closed: list[tuple[str, Any, float]]) -> list[WindowVerdict]:
         if not closed:
             return []
-        health = self.bundle.health
-        features = np.stack([r.features for _, r, _ in closed])
-        verdicts = judge(features, health.classifier_, health.open_set_, [r.reason for _, r, _ in closed])
-        return [WindowVerdict(m, t0 + r.start * DT, t0 + r.stop * DT, v, r.entropies)
-                for (m, r, t0), v in zip(closed, verdicts)]
+        judged = self._engine.judge([r for _, r, _ in closed])
+        return [WindowVerdict(m, t0 + r.start * DT, t0 + r.stop * DT, v, scores)
+                for (m, r, t0), (v, scores) in zip(closed, judged)]

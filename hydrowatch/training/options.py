@@ -19,6 +19,11 @@ DEFAULT_NARX: dict[str, Any] = {"input_delays": 4, "output_delays": 4, "hidden":
 """Short NARX of the demo (the study's Table 4.5 network is 15/15/35: ``--narx 15,15,35``)."""
 DEFAULT_BJ: dict[str, Any] = {"nb": 3, "nf": 3, "nc": 2, "nd": 2, "delay": 0}
 """Box-Jenkins orders of every sensor unless given."""
+METHODS = ("parity", "entropy")
+"""Health methods: ``parity`` (component relations, :mod:`hydrowatch.condition`) and ``entropy``
+(the study's reference models + relative entropies). ``parity`` is the default: it measures best
+on a working duty cycle (docs/health-pipeline.md)."""
+DEFAULT_METHOD = "parity"
 DEMO_PLAN = DataPlan(reference_samples=4000, base_samples=6000, classifier_windows=50, window=1000, hop=500)
 """A small data plan (35,500 samples, 177.5 s per state) that trains in about a minute on 2 cores."""
 
@@ -29,8 +34,10 @@ class TrainingSettings:
 
     Parameters
     ----------
+    method : {"parity", "entropy"}
+        Health method (:data:`METHODS`).
     reference : {"narx", "bj"}
-        Kind of the reference models.
+        Kind of the reference models (``entropy`` method).
     narx, bj : dict
         Parameters of :class:`~hydrowatch.sysid.NARX` / :class:`~hydrowatch.sysid.BoxJenkins`.
     plan : DataPlan
@@ -43,6 +50,7 @@ class TrainingSettings:
         Seed of the classifier's split and weights.
     """
 
+    method: str = DEFAULT_METHOD
     reference: str = "narx"
     narx: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_NARX))
     bj: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_BJ))
@@ -51,15 +59,24 @@ class TrainingSettings:
     hidden: int = 15
     seed: int = 0
 
+    @property
+    def name(self) -> str:
+        """Short name of what is trained: ``parity``, or the reference kind (``narx``, ``bj``) for ``entropy``."""
+        return "parity" if self.method == "parity" else self.reference
+
     def reference_params(self) -> dict[str, Any]:
         """Parameters of the chosen reference model kind."""
         return dict(self.narx if self.reference == "narx" else self.bj)
 
     def to_dict(self) -> dict[str, Any]:
         """Flat JSON-able form (MLflow parameters, manifest)."""
-        out: dict[str, Any] = {"reference": self.reference, "distribution": self.distribution,
-                               "classifier_hidden": self.hidden, "seed": self.seed}
-        out.update({f"{self.reference}.{k}": v for k, v in self.reference_params().items()})
+        if self.method not in METHODS:
+            raise ParameterError(f"method must be one of {METHODS}. Got {self.method!r}.")
+        out: dict[str, Any] = {"method": self.method}
+        if self.method == "entropy":
+            out.update({"reference": self.reference, "distribution": self.distribution,
+                        "classifier_hidden": self.hidden, "seed": self.seed})
+            out.update({f"{self.reference}.{k}": v for k, v in self.reference_params().items()})
         out.update({f"plan.{k}": v for k, v in asdict(self.plan).items()})
         return out
 
@@ -82,7 +99,11 @@ def _ints(text: str, names: tuple[str, ...], flag: str) -> dict[str, int]:
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags that choose what is trained (shared by ``train``, ``trainer`` and ``demo``)."""
     g = parser.add_argument_group("training")
-    g.add_argument("--reference", choices=("narx", "bj"), default="narx", help="reference model kind (default narx)")
+    g.add_argument("--method", choices=(*METHODS, "both"), default=DEFAULT_METHOD,
+                   help=f"health method (default {DEFAULT_METHOD}: component relations; entropy: the study's "
+                        "reference models + relative entropies; both: one run of each)")
+    g.add_argument("--reference", choices=("narx", "bj"), default="narx",
+                   help="reference model kind of the entropy method (default narx)")
     g.add_argument("--narx", default=None, metavar="NU,NY,H",
                    help=f"NARX input delays, output delays, neurons (default "
                         f"{DEFAULT_NARX['input_delays']},{DEFAULT_NARX['output_delays']},{DEFAULT_NARX['hidden']}; "
@@ -101,7 +122,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> TrainingSettings:
-    """:class:`TrainingSettings` from :func:`add_training_arguments`' flags."""
+    """:class:`TrainingSettings` from :func:`add_training_arguments`' flags (``--method both``: the default method)."""
     narx = dict(DEFAULT_NARX)
     if args.narx:
         narx.update(_ints(args.narx, ("input_delays", "output_delays", "hidden"), "--narx"))
@@ -113,8 +134,17 @@ def settings_from_args(args: argparse.Namespace) -> TrainingSettings:
     plan = STUDY_PLAN if args.full_plan else DEMO_PLAN
     if args.windows is not None:
         plan = replace(plan, classifier_windows=args.windows)
-    return TrainingSettings(reference=args.reference, narx=narx, bj=bj, plan=plan, distribution=args.distribution,
-                            seed=args.seed)
+    method = DEFAULT_METHOD if getattr(args, "method", DEFAULT_METHOD) == "both" else args.method
+    return TrainingSettings(method=method, reference=args.reference, narx=narx, bj=bj, plan=plan,
+                            distribution=args.distribution, seed=args.seed)
+
+
+def settings_list_from_args(args: argparse.Namespace) -> list[TrainingSettings]:
+    """One :class:`TrainingSettings` per method ``--method`` names (``both``: entropy, then parity)."""
+    base = settings_from_args(args)
+    if args.method != "both":
+        return [base]
+    return [replace(base, method=m) for m in sorted(METHODS)]
 
 
 def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
@@ -126,5 +156,8 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--model-name", default=DEFAULT_MODEL_NAME, help=f"registered model (default {DEFAULT_MODEL_NAME})")
     g.add_argument("--alias", default=DEFAULT_ALIAS, help=f"alias moved to the new version (default {DEFAULT_ALIAS})")
     g.add_argument("--no-register", action="store_true", help="log the run but do not register the bundle")
+    g.add_argument("--check-seconds", type=float, default=0.0, metavar="S",
+                   help="after training, measure accuracy on simulated recordings of S s per state (another seed: "
+                        "training command, duty cycle, narrow range) and log it as metrics (default 0: skip)")
 
 

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from hydrowatch.report.training import run_metrics, write_training_artifacts
+from hydrowatch.training.accuracy import COMMANDS, accuracy_metrics, measure_accuracy
 from hydrowatch.training.data import read_labelled
 from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME, TrainingSettings
 from hydrowatch.training.tracking import log_training
@@ -24,24 +26,52 @@ def train_and_track(
     alias: str | None = DEFAULT_ALIAS,
     report_dir: str | Path | None = None,
     skip_unreadable: bool = False,
+    check_seconds: float = 0.0,
+    check_seed: int = 100,
 ) -> tuple[TrainingResult, dict[str, Any]]:
     """Train from the recordings at ``data``, save the bundle to ``out``, log and register it.
 
     Returns the training result and the JSON summary (``hydrowatch train``'s output): the
-    result's summary plus ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``.
-    ``skip_unreadable`` leaves out files that cannot be read yet (see :func:`read_labelled`).
+    result's summary plus ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``
+    and, with ``check_seconds`` > 0, ``checks`` (command → accuracy): every trained state simulated
+    again for ``check_seconds`` s with ``check_seed`` under each command of
+    :data:`~hydrowatch.training.accuracy.COMMANDS`, logged as ``accuracy.<command>`` metrics (the
+    states must be simulator states). ``skip_unreadable`` leaves out files that cannot be read yet
+    (see :func:`read_labelled`).
     """
     result = train(read_labelled(data, skip_unreadable=skip_unreadable), settings)
     result.bundle.save(out)
+    checks = [measure_accuracy(result.bundle, command=c, seconds=check_seconds, seed=check_seed)
+              for c in COMMANDS] if check_seconds > 0 else []
     with tempfile.TemporaryDirectory(prefix="hydrowatch-report-") as tmp:
         folder = Path(report_dir) if report_dir is not None else Path(tmp)
+        if checks:
+            result.evaluation["checks"] = checks
         write_training_artifacts(result, folder)
         logged = log_training(
-            params=settings.to_dict(), metrics=run_metrics(result), bundle_dir=out, report_dir=folder,
-            tracking=tracking, experiment=experiment, run_name=f"{settings.reference}-{result.bundle.version[7:]}",
-            model_name=model_name, alias=alias,
-            tags={"reference": settings.reference, "bundle_version": result.bundle.version},
+            params=settings.to_dict(), metrics={**run_metrics(result), **accuracy_metrics(checks)}, bundle_dir=out,
+            report_dir=folder, tracking=tracking, experiment=experiment,
+            run_name=f"{settings.name}-{result.bundle.version[7:]}", model_name=model_name, alias=alias,
+            tags={"method": settings.method, "reference": settings.name, "bundle_version": result.bundle.version},
         )
     summary = {**result.summary(), "out": str(out), "run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"],
                "model_uri": logged["model_uri"], "registered_version": logged["version"]}
+    if checks:
+        summary["checks"] = {a["command"]: a["accuracy"] for a in checks}
     return result, summary
+
+
+def train_each(
+    data: str | Path, out: str | Path, settings: Sequence[TrainingSettings], *,
+    report_dir: str | Path | None = None, **options: Any,
+) -> Iterator[dict[str, Any]]:
+    """:func:`train_and_track` for each settings (``--method both``); yields the summaries in order.
+
+    With one settings the bundle goes to ``out`` (plots to ``report_dir``); with several, to
+    ``out/<method>`` (``report_dir/<method>``) each, as separate MLflow runs (the registry alias,
+    if any, ends on the last one: the default method).
+    """
+    many = len(settings) > 1
+    for s in settings:
+        report = None if report_dir is None else (Path(report_dir) / s.method if many else report_dir)
+        yield train_and_track(data, Path(out) / s.method if many else out, s, report_dir=report, **options)[1]

@@ -1,8 +1,12 @@
 """Offline scoring of recordings window by window: the ``hydrowatch score --json`` objects (contract).
 
-Each recording's prediction errors (after the reference models' warm-up) are cut into windows of
-the bundle's length and hop; every window gets a verdict (:func:`hydrowatch.health.verdict.judge`)
-and its relative entropies per sensor and state. A labelled recording also gets its accuracy:
+Entropy bundles: each recording's prediction errors (after the reference models' warm-up) are cut
+into windows of the bundle's length and hop; every window gets a verdict
+(:func:`hydrowatch.health.verdict.judge`) and its relative entropies per sensor and state (``kl``).
+Parity bundles: the raw signals are cut into windows from the first sample
+(:func:`hydrowatch.condition.windows_from_recording`); every window gets the condition model's
+verdict and, in ``kl``, its relation scores per relation and state (F[r, k] ≥ 1, about 1 for the
+state whose physics explains the window, docs/command-invariance.md). A labelled recording also gets its accuracy:
 windows whose label is a trained state count as right when the verdict names it; windows of a
 state the model was not trained on count as right when the verdict is ``unknown``; ``invalid``
 windows are left out of the accuracy (they are counted).
@@ -15,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from hydrowatch.health.verdict import INVALID, UNKNOWN
+from hydrowatch.condition import windows_from_recording
+from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 from hydrowatch.training.bundle import ModelBundle
 
@@ -49,14 +54,12 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
     ``summary`` has ``windows``, ``counts`` (state → n), ``accuracy`` (None when unlabelled),
     ``model_version``.
     """
-    health = bundle.health
-    window = int(health.features_.window)
+    window = bundle.window
     warmup = bundle.warmup
-    errors = bundle.errors(recording)[warmup:]
     t = recording.t
     windows: list[dict[str, Any]] = []
-    if errors.shape[0] < window:
-        have = max(0, errors.shape[0])
+    have = max(0, len(recording) - warmup)
+    if have < window:
         windows.append({
             "start_s": float(t[0]) if len(t) else 0.0, "state": INVALID, "probability": None, "probabilities": {},
             "kl": {}, "reason": f"too short: {have} samples after the {warmup}-sample warm-up, a window needs {window} "
@@ -64,15 +67,14 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
         })
         truths: list[str | None] = [None]
     else:
-        starts, verdicts = health.score(errors)
-        kl = health.features_.window_entropies(errors)
+        starts, verdicts, kl = _window_scores(bundle, recording)
         truths = window_truth(recording, starts + warmup, window, bundle.states)
         for i, (start, verdict) in enumerate(zip(starts.tolist(), verdicts)):
             item: dict[str, Any] = {"start_s": float(t[start + warmup]), **verdict.to_dict()}
             if verdict.state == UNKNOWN and "reason" not in item:
                 item["reason"] = "no trained state explains the window (open-set rule)"
             item["kl"] = {} if verdict.state == INVALID else {
-                s: {k: float(kl[i, j, m]) for m, k in enumerate(bundle.states)} for j, s in enumerate(bundle.sensors)
+                s: {k: float(kl[i, j, m]) for m, k in enumerate(bundle.states)} for j, s in enumerate(bundle.kl_rows)
             }
             if truths[i] is not None:
                 item["truth"] = truths[i]
@@ -86,6 +88,22 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
         "summary": {"windows": len(windows), "counts": dict(counts), "accuracy": accuracy,
                     "model_version": bundle.version},
     }
+
+
+def _window_scores(bundle: ModelBundle, recording: Recording) -> tuple[np.ndarray, list[Verdict], np.ndarray]:
+    """Window starts (after the warm-up), verdicts and ``kl`` scores, shape (n_windows, n_rows, n_states)."""
+    if bundle.condition is not None:
+        model = bundle.condition
+        temperature = bool(bundle.manifest.get("temperature")) and "temperature" in recording.channels
+        raw = windows_from_recording(recording, bundle.window, bundle.hop, temperature=temperature)
+        starts, verdicts = model.score(raw, len(recording))
+        scores = model.features_.transform(raw)
+        return starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states))
+    health = bundle.health
+    assert health is not None
+    errors = bundle.errors(recording)[bundle.warmup:]
+    starts, verdicts = health.score(errors)
+    return starts, verdicts, health.features_.window_entropies(errors)
 
 
 def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:

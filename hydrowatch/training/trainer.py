@@ -1,5 +1,7 @@
 """The trainer: labelled recordings in, a model bundle and its evaluation out (study Figure 6.4).
 
+:func:`train` dispatches on ``settings.method``: ``parity`` goes to
+:func:`hydrowatch.training.parity.train_parity`; ``entropy`` (the study's method) is done here.
 Wiring only, the maths lives in :mod:`hydrowatch.sysid` and :mod:`hydrowatch.health`:
 
 1. the reference models (Box-Jenkins or NARX, one per sensor) are fitted on the healthy state's
@@ -43,15 +45,16 @@ class TrainingResult:
     ----------
     bundle : ModelBundle
     base_errors : dict of str to ndarray, shape (n_k, n_sensors)
-        Prediction errors of each state's base part (figures 6.1-6.3).
-    window_entropies : dict of str to ndarray, shape (m_k, n_sensors, n_states)
-        Relative entropies of each state's classifier windows (table 6.1 is one such window).
+        Prediction errors of each state's base part (figures 6.1-6.3); empty for the parity method.
+    window_entropies : dict of str to ndarray, shape (m_k, n_rows, n_states)
+        Relative entropies of each state's classifier windows (table 6.1 is one such window), rows
+        the sensors; for the parity method the relation scores of the test windows, rows the relations.
     evaluation : dict
         ``test_accuracy``, ``per_class_recall``, ``confusion_matrix`` (true rows), ``labels``, ...
     reference : dict
-        Per sensor: ``nrmse_one_step``, the model summary (γ for NARX; Q, S, roots for Box-Jenkins)
-        and ``correlations`` of the healthy base part's errors (Eqs. 4.22, 4.23: ``acf`` lags
-        0..20, ``ccf`` with the voltage lags -20..20, ``bound``).
+        Empty for the parity method, else per sensor: ``nrmse_one_step``, the model summary (γ for
+        NARX; Q, S, roots for Box-Jenkins) and ``correlations`` of the healthy base part's errors
+        (Eqs. 4.22, 4.23: ``acf`` lags 0..20, ``ccf`` with the voltage lags -20..20, ``bound``).
     seconds : float
         Wall-clock training time, s.
     """
@@ -66,7 +69,8 @@ class TrainingResult:
     def summary(self) -> dict[str, Any]:
         """The JSON summary ``hydrowatch train`` prints."""
         return {
-            "version": self.bundle.version, "reference": self.bundle.manifest["reference"],
+            "version": self.bundle.version, "method": self.bundle.method,
+            "reference": self.bundle.manifest["reference"],
             "states": self.bundle.states, "sensors": self.bundle.sensors,
             "nrmse_one_step": {s: r["nrmse_one_step"] for s, r in self.reference.items()},
             "test_accuracy": self.evaluation["test_accuracy"],
@@ -120,6 +124,10 @@ def train(grouped: Mapping[str, list[Recording]], settings: TrainingSettings | N
     start = time.perf_counter()
     if HEALTHY not in grouped:
         raise DataError(f"training data must include the '{HEALTHY}' state. Got {sorted(grouped)}.")
+    if settings.method == "parity":
+        from hydrowatch.training.parity import train_parity
+
+        return train_parity(grouped, settings)
     states = ordered_states(list(grouped))
     refs = fit_references(_longest(list(grouped[HEALTHY])), settings)
     plan = settings.plan
@@ -146,7 +154,7 @@ def train(grouped: Mapping[str, list[Recording]], settings: TrainingSettings | N
     reference = {s: {"nrmse_one_step": r.nrmse_one_step_, "summary": r.summary(), "correlations": correlations[s]}
                  for s, r in refs.items()}
     manifest = {
-        "reference": settings.reference, "states": states, "sensors": list(SENSORS),
+        "method": "entropy", "reference": settings.reference, "states": states, "sensors": list(SENSORS),
         "window": plan.window, "hop": plan.hop, "warmup": max(r.warmup_ for r in refs.values()),
         "settings": settings.to_dict(),
         "data": {s: {"runs": len(grouped[s]), "samples": int(sum(len(r) for r in grouped[s])),

@@ -31,7 +31,6 @@ from hydrowatch.bus import (
 )
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
-from hydrowatch.io.codec import arrays_from_sensor_chunk
 from hydrowatch.log import event, get_logger
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
@@ -90,7 +89,7 @@ def _publish(publisher: Publisher, bundle: ModelBundle, verdicts: list[WindowVer
 
     for item in verdicts:
         fleet, machine = item.machine.split("/", 1)
-        kl = kl_batch(item, bundle.sensors, bundle.states, bundle.version)
+        kl = kl_batch(item, bundle.kl_rows, bundle.states, bundle.version)
         if kl is not None:
             publisher.put(key(fleet, machine, "kl"), kl)
         publisher.put(key(fleet, machine, "health"), verdict_batch(item, bundle.version))
@@ -115,7 +114,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             reporter.status = "running"
             event(log, "scorer started", model=model.bundle.version, shard=str(args.shard), fleet=args.fleet)
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                chunks = _gather(subscriber, args.tick)
+                chunks = _gather(subscriber, args.tick, scorer.columns)
                 if model.moved():
                     scorer = OnlineScorer(model.bundle)
                 if chunks:
@@ -124,7 +123,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                     counters["verdicts"] += len(verdicts)
             reporter.status = "draining"
             subscriber.close()
-            rest = [_chunk(m) for m in subscriber.drain()]
+            rest = _chunks(list(subscriber.drain()), scorer.columns)
             _publish(publisher, model.bundle, scorer.update(rest))
         finally:
             subscriber.close()
@@ -136,26 +135,26 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     return 0
 
 
-def _chunk(message: Message) -> Chunk:
-    from hydrowatch.training.online import Chunk
+def _chunks(messages: list[Message], columns: Sequence[str]) -> list[Chunk]:
+    from hydrowatch.training.online import chunks_from_batches
 
-    t, channels = arrays_from_sensor_chunk(message.batch)
-    return Chunk(f"{message.key.fleet}/{message.key.machine}", t, channels)
+    return chunks_from_batches([f"{m.key.fleet}/{m.key.machine}" for m in messages], [m.batch for m in messages],
+                               columns)
 
 
-def _gather(subscriber: Subscriber, tick: float) -> list[Chunk]:
+def _gather(subscriber: Subscriber, tick: float, columns: Sequence[str]) -> list[Chunk]:
     """Chunks received within ``tick`` seconds of the first one (at most 0.1 s waiting for it)."""
     first = subscriber.recv(timeout=0.1)
     if first is None:
         return []
-    chunks = [_chunk(first)]
+    messages = [first]
     end = time.monotonic() + tick
     while (left := end - time.monotonic()) > 0:
         message = subscriber.recv(timeout=left)
         if message is None:
             break
-        chunks.append(_chunk(message))
-    return chunks
+        messages.append(message)
+    return _chunks(messages, columns)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

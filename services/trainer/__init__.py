@@ -1,6 +1,7 @@
 """Trainer service: trains from a recordings folder (e.g. the recorder's) and registers the model.
 
-A thin wrapper over :func:`hydrowatch.training.pipeline.train_and_track`: trains once, or every
+A thin wrapper over :func:`hydrowatch.training.pipeline.train_each` (``--method``: parity, entropy
+or both, as ``hydrowatch train``): trains once, or every
 ``--every`` seconds (the registry alias then moves to each new version, and scorers started with
 ``--follow-alias`` switch). Files that cannot be read yet (an MCAP the recorder is still writing)
 are skipped. SIGINT/SIGTERM stops it between trainings.
@@ -18,7 +19,7 @@ from pathlib import Path
 from hydrowatch.bus.service import service_main
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
-from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_from_args
+from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_list_from_args
 
 NAME = "trainer"
 HELP = "train from a recordings folder (once or every N seconds) and register the model in MLflow"
@@ -35,15 +36,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Train (repeatedly with ``--every``) until ``stop``; returns 0, or 2 when a single training fails."""
-    from hydrowatch.training.pipeline import train_and_track
+    from hydrowatch.training.pipeline import train_each
 
-    settings = settings_from_args(args)
+    settings = settings_list_from_args(args)
     while not stop.is_set():
         try:
-            _, summary = train_and_track(
-                args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
-                model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True)
-            print(json.dumps(summary), flush=True)
+            for summary in train_each(
+                    args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
+                    model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True,
+                    check_seconds=args.check_seconds):
+                print(json.dumps(summary), flush=True)
         except DataError as exc:
             if args.every <= 0:
                 raise

@@ -1,0 +1,134 @@
+"""The parity method's trainer: labelled recordings in, a parity bundle and its evaluation out.
+
+Wiring only, the maths lives in :mod:`hydrowatch.condition` (docs/command-invariance.md):
+
+1. each state's recordings are cut into raw windows of voltage, flow, speed, torque (and the oil
+   temperature when every recording has it), ``plan.window`` samples every ``plan.hop``; the first
+   85 % of every run fits, the last :data:`TEST_FRACTION` is held out (whole windows, no overlap
+   with the fitted part);
+2. :class:`~hydrowatch.condition.ConditionModel` fits each state's severity level and box, the
+   relations' residual floors, the nearest-physics rule's temperature and the open-set rule;
+3. the held-out windows give accuracy, per-class recall, the confusion matrix and the calibration.
+
+The bundle scores non-overlapping windows (hop = window): a verdict every ``plan.window`` samples
+at half the cost of the entropy method's overlapping hop.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
+from hydrowatch.errors import DataError
+from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
+from hydrowatch.health.verdict import UNKNOWN
+from hydrowatch.log import event, get_logger
+from hydrowatch.recording import Recording
+from hydrowatch.training.bundle import ModelBundle
+from hydrowatch.training.data import ordered_states
+from hydrowatch.training.options import TrainingSettings
+from hydrowatch.training.trainer import TrainingResult
+
+_log = get_logger(__name__)
+TEST_FRACTION = 0.15
+"""Share of every run's samples held out for the test windows."""
+
+
+def uses_temperature(grouped: Mapping[str, list[Recording]]) -> bool:
+    """Whether every recording carries the oil temperature (then windows get it as 5th channel)."""
+    return all("temperature" in r.channels for runs in grouped.values() for r in runs)
+
+
+def split_windows(runs: list[Recording], window: int, hop: int, temperature: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Fit and test windows of one state's runs, shapes (m_fit, window, c) and (m_test, window, c).
+
+    Every run of ``n`` samples gives its first ``n − round(TEST_FRACTION·n)`` samples to the fit
+    windows and the rest to the test windows (a run too short for a test window gives none).
+    """
+    fit: list[np.ndarray] = []
+    test: list[np.ndarray] = []
+    for run in runs:
+        cut = len(run) - int(round(TEST_FRACTION * len(run)))
+        for part, into in ((run.slice(0, cut), fit), (run.slice(cut, len(run)), test)):
+            if len(part) >= window:
+                into.append(windows_from_recording(part, window, hop, temperature=temperature))
+    channels = 5 if temperature else 4
+    empty = np.empty((0, window, channels))
+    return (np.concatenate(fit) if fit else empty), (np.concatenate(test) if test else empty)
+
+
+def train_parity(grouped: Mapping[str, list[Recording]], settings: TrainingSettings) -> TrainingResult:
+    """Train a parity bundle from recordings grouped by health state (see the module docstring).
+
+    Raises
+    ------
+    DataError
+        When a state has fewer than 2 valid fit windows.
+    """
+    start = time.perf_counter()
+    plan = settings.plan
+    states = ordered_states(list(grouped))
+    temperature = uses_temperature(grouped)
+    fit: dict[str, np.ndarray] = {}
+    test: dict[str, np.ndarray] = {}
+    for state in states:
+        fit[state], test[state] = split_windows(list(grouped[state]), plan.window, plan.hop, temperature)
+        if fit[state].shape[0] < 2:
+            raise DataError(f"state '{state}' must have at least 2 windows of {plan.window} samples to fit. Got "
+                            f"{fit[state].shape[0]}. Record longer.")
+    features = ConditionFeatures(window=plan.window, hop=plan.window)
+    model = ConditionModel(features=features).fit(fit)
+    scores = {s: model.features_.transform(test[s]) if test[s].shape[0] else
+              np.empty((0, len(model.features_.feature_names_))) for s in states}
+    evaluation = evaluate(model, test)
+    n_rel = len(model.features_.relations_)
+    window_scores = {s: x.reshape(x.shape[0], n_rel, len(states)) for s, x in scores.items()}
+    manifest = {
+        "method": "parity", "reference": None, "states": states, "sensors": list(model.features_.sensors),
+        "relations": list(model.features_.relations_), "window": plan.window, "hop": plan.window, "warmup": 0,
+        "temperature": temperature, "settings": settings.to_dict(),
+        "data": {s: {"runs": len(grouped[s]), "samples": int(sum(len(r) for r in grouped[s])),
+                     "fit_windows": int(fit[s].shape[0]), "test_windows": int(test[s].shape[0]),
+                     "sources": sorted({str(r.meta.get("source", "")) for r in grouped[s]})} for s in states},
+        "metrics": {"test_accuracy": evaluation["test_accuracy"], "levels": model.features_.levels_,
+                    "floors": model.features_.floors_},
+    }
+    bundle = ModelBundle({}, None, manifest, model)
+    seconds = time.perf_counter() - start
+    event(_log, "trained", method="parity", accuracy=evaluation["test_accuracy"], seconds=round(seconds, 1))
+    return TrainingResult(bundle, {}, window_scores, evaluation, {}, seconds)
+
+
+def evaluate(model: ConditionModel, test: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Held-out evaluation: the decision alone (``test_accuracy``) and with the open-set rule.
+
+    Keys as the entropy trainer's: ``test_accuracy``, ``test_accuracy_with_open_set``,
+    ``known_rejected`` (share read ``unknown``), ``per_class_recall``, ``labels``,
+    ``confusion_matrix`` (true rows), ``test_windows``, ``ece``. Invalid windows are left out.
+    """
+    states = list(model.features_.states_)
+    truth, judged, proba = [], [], []
+    for s in states:
+        for v in (model.judge(test[s]) if test[s].shape[0] else []):
+            if v.probabilities:
+                truth.append(s)
+                judged.append(v.state)
+                proba.append([v.probabilities[k] for k in states])
+    if not truth:
+        raise DataError("the held-out part must give at least one valid test window. Got none. Record longer.")
+    p = np.asarray(proba)
+    y, verdict = np.asarray(truth), np.asarray(judged)
+    predicted = np.asarray(states)[np.argmax(p, axis=1)]
+    index = {s: i for i, s in enumerate(states)}
+    return {
+        "test_accuracy": float(np.mean(predicted == y)),
+        "test_accuracy_with_open_set": float(np.mean(verdict == y)),
+        "known_rejected": float(np.mean(verdict == UNKNOWN)),
+        "per_class_recall": per_class_recall(y, predicted, states), "labels": states,
+        "confusion_matrix": confusion_matrix(y, predicted, states).tolist(), "test_windows": int(y.size),
+        "ece": expected_calibration_error(p, np.array([index[s] for s in truth])),
+    }
