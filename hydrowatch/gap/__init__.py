@@ -1,0 +1,13 @@
+"""Sim-to-real gap analysis: calibrate the nominal model, locate its error, name the missing physics.
+
+``GapAnalyser().fit(recording).report_`` is the contract's ``hydrowatch gap`` report; see
+docs/gap.md for the method, the report's additions and the saved model format.
+"""
+
+from hydrowatch.gap.analysis import GapAnalyser, Unidentified, analyse_gap
+from hydrowatch.gap.calibrate import CALIBRATED
+from hydrowatch.gap.candidates import CANDIDATES, Candidate
+from hydrowatch.gap.report import MODEL_SCHEMA, read_model
+
+__all__ = ["CALIBRATED", "CANDIDATES", "MODEL_SCHEMA", "Candidate", "GapAnalyser", "Unidentified", "analyse_gap",
+           "read_model"]

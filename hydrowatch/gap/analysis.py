@@ -1,0 +1,150 @@
+"""The sim-to-real gap analysis end to end: align → calibrate → locate → diagnose → correct → report.
+
+:class:`GapAnalyser` is a batch estimator (scikit-learn convention): ``fit(recording)`` returns
+self with ``report_`` (the contract's ``hydrowatch gap`` JSON as a dict), ``model_`` (the
+augmented simulator configuration) and the intermediate fits for plotting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.errors import NotFittedError
+from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
+from hydrowatch.gap.calibrate import CALIBRATED, OutputErrorFit, calibrate
+from hydrowatch.gap.candidates import select_candidates, untestable
+from hydrowatch.gap.correction import SparseCorrection, build_library
+from hydrowatch.gap.diagnose import WHITE_LIMIT, Diagnosis, diagnose, residual_is_white
+from hydrowatch.gap.locate import noise_std, whiteness
+from hydrowatch.gap.report import build_report, model_config
+from hydrowatch.log import event, get_logger
+from hydrowatch.plant.effects import Effects, resolve_effects
+from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.recording import SENSORS, Recording
+
+log = get_logger(__name__)
+
+@dataclass(frozen=True)
+class Unidentified:
+    """A data-driven correction of one sensor (no catalog effect explained it).
+
+    Attributes
+    ----------
+    sensor : str
+    correction : SparseCorrection
+        Fitted on the residual of the final catalog model.
+    prediction : ndarray, shape (n,)
+        Corrected simulation of the sensor.
+    """
+
+    sensor: str
+    correction: SparseCorrection
+    prediction: np.ndarray
+
+
+class GapAnalyser:
+    """Find what the nominal plant model leaves out of a recording.
+
+    Parameters
+    ----------
+    nominal : PlantParameters, optional
+        The model to compare with (default: nominal parameters).
+    effects : mapping of effect id to parameters, optional
+        Effects the model to compare with already has (e.g. a model saved by an earlier analysis);
+        they are kept at their given values and not tried again.
+    candidates : tuple of str, optional
+        Catalog effect ids to try (default: all).
+    max_effects : int, default 3
+        Most effects added to the model.
+    correct_unknown : bool, default True
+        Fit a sparse data-driven correction when the residual stays coloured.
+
+    Attributes
+    ----------
+    aligned_ : AlignedRecording
+    nominal_prediction_, calibrated_, diagnosis_ : the fits, for plots
+    unidentified_ : list of Unidentified
+    report_ : dict
+        The contract's report (``mismatch``, ``effects``, ``located``, ``fit``,
+        ``calibrated_parameters``, ``summary``) plus ``noise``, ``experiments``, ``trials``.
+    model_ : dict
+        Simulator configuration of the augmented model (``parameters``, ``effects``).
+    """
+
+    def __init__(self, *, nominal: PlantParameters | None = None, effects: Effects | None = None,
+                 candidates: tuple[str, ...] | None = None,
+                 max_effects: int = 3, correct_unknown: bool = True) -> None:
+        self.nominal = nominal
+        self.effects = effects
+        self.candidates = candidates
+        self.max_effects = max_effects
+        self.correct_unknown = correct_unknown
+
+    def fit(self, recording: Recording) -> GapAnalyser:
+        """Run the analysis on one recording; returns self."""
+        nominal = self.nominal or PlantParameters()
+        pool = select_candidates(self.candidates)
+        aligned = align(recording)
+        base_effects = resolve_effects(self.effects)
+        nominal_prediction = simulate_sensors(aligned, [nominal], [base_effects])[0]
+        calibrated = calibrate(aligned, nominal, effects=base_effects)
+        white = residual_is_white(aligned, calibrated.prediction)
+        event(log, "calibrated", white=white, cost=calibrated.fit_cost)
+        if white:
+            diagnosis = Diagnosis(calibrated, unrevealable=untestable(pool, aligned, calibrated.prediction[1]))
+        else:
+            diagnosis = diagnose(aligned, calibrated, pool, max_effects=self.max_effects, origins=[nominal])
+        unidentified = []
+        if self.correct_unknown and not residual_is_white(aligned, diagnosis.final.prediction):
+            unidentified = _correct(aligned, diagnosis.final, nominal.omega_p)
+        self.aligned_ = aligned
+        self.nominal_prediction_ = nominal_prediction
+        self.calibrated_ = calibrated
+        self.diagnosis_ = diagnosis
+        self.unidentified_ = unidentified
+        self.after_prediction_ = _after(diagnosis.final.prediction, unidentified)
+        self.report_ = build_report(aligned, nominal, nominal_prediction, calibrated, diagnosis, unidentified,
+                                    self.after_prediction_)
+        self.model_ = model_config(diagnosis.final, unidentified)
+        return self
+
+    @property
+    def report(self) -> dict[str, Any]:
+        """The fitted report (raises NotFittedError before ``fit``)."""
+        if not hasattr(self, "report_"):
+            raise NotFittedError("GapAnalyser must be fitted before its report is read. Call fit(recording).")
+        return self.report_
+
+
+def analyse_gap(recording: Recording, nominal: PlantParameters | None = None, **kwargs: Any) -> dict[str, Any]:
+    """The report of :class:`GapAnalyser` for one recording (keyword arguments as its parameters)."""
+    return GapAnalyser(nominal=nominal, **kwargs).fit(recording).report
+
+
+def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float) -> list[Unidentified]:
+    """Sparse corrections of the sensors whose residual stays coloured and which they improve by >= 10 %."""
+    library = build_library(aligned.voltage, final.prediction, aligned.t, pump_speed=pump_speed)
+    residual = aligned.measured - final.prediction
+    out = []
+    for i, sensor in enumerate(SENSORS):
+        if whiteness(residual[i, aligned.holdout_mask]) < WHITE_LIMIT:
+            continue
+        corr = SparseCorrection().fit(library, residual[i], aligned.fit_mask, aligned.holdout_mask)
+        noise = noise_std(residual[i, aligned.used_mask])
+        rms = float(np.sqrt(np.mean(residual[i, aligned.holdout_mask] ** 2)))
+        if corr.holdout_gain_ >= 0.1 and rms > 1.2 * noise:
+            out.append(Unidentified(sensor, corr, final.prediction[i] + corr.predict(library)))
+    return out
+
+
+def _after(prediction: np.ndarray, unidentified: list[Unidentified]) -> np.ndarray:
+    after = prediction.copy()
+    for u in unidentified:
+        after[SENSORS.index(u.sensor)] = u.prediction
+    return after
+
+
+__all__ = ["CALIBRATED", "GapAnalyser", "Unidentified", "analyse_gap"]

@@ -1,0 +1,252 @@
+"""The hypotheses: one catalog effect added to the calibrated model, refitted (gap-method.md, step 4).
+
+Each :class:`Candidate` says which of the effect's parameters are estimated (the others keep the
+catalog default), a grid of starting magnitudes scanned in one batched simulation, and what the
+recording must contain for the effect to be visible at all (:func:`revealable`): when it is not,
+the analysis names the experiment that would reveal it instead of guessing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hydrowatch.gap.align import AlignedRecording, simulate_sensors
+from hydrowatch.gap.calibrate import CALIBRATED, ModelSpace, OutputErrorFit, fit_output_error
+from hydrowatch.plant.effects import EFFECT_IDS, EFFECTS, SENSOR_NAMES
+from hydrowatch.plant.parameters import PlantParameters
+
+SCREEN_SECONDS = 14.0
+"""Length of the record the screening fits use, s (ranking hypotheses needs no more)."""
+
+SLOW_EFFECTS = frozenset({"thermal_drift"})
+"""Effects that grow over the record; they are screened on all of it."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One hypothesis of missing physics.
+
+    Attributes
+    ----------
+    id : str
+        Catalog effect id.
+    free : tuple of str
+        Effect parameters to estimate.
+    scan : tuple of float
+        Starting values of ``free[0]`` tried before the local fit (catalog units).
+    partners : tuple of str
+        Plant parameters a calibration without the effect bends to mimic it (βe for entrained air,
+        ωv for a dead time); screening refits them with the effect and scans from their origin values.
+    fixed : dict of str to float
+        Parameters held at a value other than the catalog default (sensor_lowpass's ``sensor``).
+    """
+
+    id: str
+    free: tuple[str, ...]
+    scan: tuple[float, ...]
+    partners: tuple[str, ...] = ()
+    fixed: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        """``id``, with the sensor for sensor_lowpass (``"sensor_lowpass (torque)"``)."""
+        if "sensor" in self.fixed:
+            return f"{self.id} ({SENSOR_NAMES[int(self.fixed['sensor'])]})"
+        return self.id
+
+    def effect(self, **values: float) -> dict[str, float]:
+        """The effect's parameter mapping: defaults, then ``fixed``, then ``values``."""
+        base = {name: spec[0] for name, spec in EFFECTS[self.id].parameters.items()}
+        return {**base, **self.fixed, **values}
+
+
+def _grid(lo: float, hi: float, n: int) -> tuple[float, ...]:
+    """n log-spaced scan values from lo to hi."""
+    return tuple(float(v) for v in np.geomspace(lo, hi, n))
+
+
+def _lowpass(sensor: int) -> Candidate:
+    return Candidate("sensor_lowpass", ("tau",), _grid(0.002, 0.15, 8), ("omega_v", "JL"),
+                     {"sensor": float(sensor)})
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate("stribeck_friction", ("Ts", "Tc"), _grid(0.1, 1.6, 6), ("TL", "BL")),
+    Candidate("quadratic_drag", ("Kd",), _grid(0.002, 0.045, 7), ("BL", "TL")),
+    Candidate("valve_deadband", ("d",), _grid(0.01, 0.25, 8), ("Kq",)),
+    Candidate("valve_saturation", ("x_max",), tuple(np.linspace(0.3, 0.8, 8)), ("Kq", "Pc")),
+    Candidate("valve_hysteresis", ("r",), _grid(0.01, 0.4, 7), ("omega_v",)),
+    Candidate("transport_delay", ("tau",), _grid(0.001, 0.04, 8), ("omega_v",)),
+    Candidate("entrained_air", ("alpha",), _grid(0.002, 0.15, 10), ("beta_e",)),
+    Candidate("pump_ripple", ("a1", "a2"), _grid(0.01, 0.25, 5)),
+    Candidate("thermal_drift", ("T_end", "T_start"), tuple(np.linspace(20.0, 100.0, 6)), ("Ctm", "Cp")),
+    Candidate("gear_backlash", ("b",), _grid(0.002, 0.06, 6), ("JL",)),
+    Candidate("shaft_compliance", ("G", "c"), _grid(100.0, 5000.0, 8), ("JL", "beta_e")),
+    _lowpass(0),
+    _lowpass(1),
+    _lowpass(2),
+)
+"""Every catalog effect as a hypothesis (sensor_lowpass once per sensor)."""
+
+assert {c.id for c in CANDIDATES} == set(EFFECT_IDS)
+
+
+def select_candidates(ids: tuple[str, ...] | None) -> list[Candidate]:
+    """Candidates of the given effect ids (all when None), catalog order."""
+    if ids is None:
+        return list(CANDIDATES)
+    unknown = sorted(set(ids) - set(EFFECT_IDS))
+    if unknown:
+        from hydrowatch.errors import ParameterError
+
+        raise ParameterError(f"candidate effects must be among {list(EFFECT_IDS)}. Got unknown {unknown}.")
+    return [c for c in CANDIDATES if c.id in ids]
+
+
+def revealable(candidate: Candidate, aligned: AlignedRecording, speed: np.ndarray) -> str | None:
+    """None when the recording can show the effect, else the experiment that would.
+
+    Parameters
+    ----------
+    candidate : Candidate
+    aligned : AlignedRecording
+    speed : ndarray, shape (n,)
+        Simulated (noise-free) gearbox speed, rad/s.
+    """
+    u = aligned.voltage[aligned.used_mask]
+    w = speed[aligned.used_mask]
+    u_max = 5.0
+    if candidate.id == "gear_backlash":
+        reversals = int(np.sum(np.diff(np.sign(w[np.abs(w) > 0.3])) != 0))
+        if reversals < 5:
+            return "a bipolar filtered-noise run (−4…4 V) that reverses the motor; this recording never does"
+    if candidate.id == "stribeck_friction" and np.mean(np.abs(w) < 1.0) < 0.005:
+        return "a slow staircase or triangle from 0 V that starts and stops the motor (speed below 1 rad/s)"
+    if candidate.id == "valve_deadband" and np.mean(np.abs(u) < 0.05 * u_max * 2) < 0.02:
+        return "a staircase through 0 V (commands below 0.5 V)"
+    if candidate.id == "valve_saturation" and np.mean(u > 0.6 * u_max) < 0.02:
+        return "a staircase up to full stroke (commands above 3 V for several seconds)"
+    if candidate.id == "thermal_drift" and aligned.duration < 20.0:
+        return "a long run (10 min or more) from cold oil"
+    return None
+
+
+def untestable(candidates: Sequence[Candidate], aligned: AlignedRecording, speed: np.ndarray) -> dict[str, str]:
+    """``{candidate label: experiment}`` for the candidates this recording cannot show (:func:`revealable`)."""
+    advice = {c.label: revealable(c, aligned, speed) for c in candidates}
+    return {label: text for label, text in advice.items() if text is not None}
+
+
+@dataclass(frozen=True)
+class Refit:
+    """A candidate fitted jointly with the effects already accepted.
+
+    Attributes
+    ----------
+    candidate : Candidate
+    fit : OutputErrorFit
+        The fit (plant and effect coordinates).
+    holdout_cost : float
+        Mean over held-out samples of the summed squared normalised errors.
+    """
+
+    candidate: Candidate
+    fit: OutputErrorFit
+    holdout_cost: float
+
+
+def holdout_cost(aligned: AlignedRecording, prediction: np.ndarray) -> float:
+    """Mean over held-out samples of Σ_sensors ((y − ŷ)/std(y))²."""
+    e = (aligned.measured[:, aligned.holdout_mask] - prediction[:, aligned.holdout_mask]) / aligned.scale[:, None]
+    return float(np.sum(e**2) / aligned.holdout_mask.sum())
+
+
+def _scan(
+    aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters]
+) -> tuple[PlantParameters, float, float]:
+    """The plant parameters (the base model's or one of ``origins``) and starting value of the
+    candidate's first free parameter at the lowest-cost grid point, and that cost minus the base
+    model's (negative: the effect helps), from one batched simulation.
+
+    Starting from ``origins`` (the nominal parameters), or from the base model with the candidate's
+    partners set back to their origin values, matters when the calibration without the effect
+    wandered far to mimic it (a dead time bent into a slow spool, entrained air into a low βe).
+    """
+    name = candidate.free[0]
+    starts = [base.parameters, *origins]
+    starts += [base.parameters.replace(**{k: getattr(o, k) for k in candidate.partners})
+               for o in origins if candidate.partners]
+    grid = []
+    for params in starts:
+        for v in candidate.scan:
+            effect = candidate.effect(**{name: v})
+            if candidate.id == "stribeck_friction":
+                effect["Tc"] = min(effect["Tc"], v)
+            grid.append((params, v, {**base.effects, candidate.id: effect}))
+    preds = simulate_sensors(aligned, [g[0] for g in grid], [g[2] for g in grid])
+    m = aligned.fit_mask
+    y = aligned.measured
+
+    def cost(p: np.ndarray) -> float:
+        return float(np.sum(((y[:, m] - p[:, m]) / aligned.scale[:, None]) ** 2) / m.sum())
+
+    costs = [cost(p) for p in preds]
+    i = int(np.argmin(costs))
+    return grid[i][0], float(grid[i][1]), costs[i] - cost(base.prediction[:, : aligned.t.size])
+
+
+def refit(
+    aligned: AlignedRecording,
+    base: OutputErrorFit,
+    candidate: Candidate,
+    *,
+    plant_free: tuple[str, ...] = CALIBRATED,
+    max_nfev: int = 10,
+    start_effect: Mapping[str, float] | None = None,
+    origins: Sequence[PlantParameters] = (),
+    require_gain: bool = False,
+) -> Refit | None:
+    """Add ``candidate`` to ``base`` (calibrated model plus accepted effects) and refit.
+
+    Parameters
+    ----------
+    aligned : AlignedRecording
+    base : OutputErrorFit
+        Current model; its parameters are the starting point (plant coordinates start at 0).
+    candidate : Candidate
+    plant_free : tuple of str, default CALIBRATED
+        Plant parameters refitted with the effect; ``()`` is a quick screening fit of the effect alone.
+    max_nfev : int, default 10
+        Solver iteration limit.
+    start_effect : mapping of str to float, optional
+        Starting values of the effect's parameters (e.g. from a screening fit); default: a scan.
+    origins : sequence of PlantParameters, default ()
+        Other plant parameters the scan may start from (the nominal ones).
+    require_gain : bool, default False
+        Return None, without the local fit, when no grid point of the scan lowers the fitting cost
+        below ``base``'s (the cheap first cut of screening).
+    """
+    params = base.parameters
+    if start_effect is not None:
+        effect = candidate.effect(**start_effect)
+    else:
+        params, start, change = _scan(aligned, base, candidate, origins)
+        if require_gain and change >= 0.0:
+            return None
+        effect = candidate.effect(**{candidate.free[0]: start})
+        if candidate.id == "stribeck_friction":
+            effect["Tc"] = min(effect["Tc"], start)
+    effects: dict[str, dict[str, float]] = {**{k: dict(v) for k, v in base.effects.items()}, candidate.id: effect}
+    accepted_free = tuple((e, p) for e, p in base.space.effect_free if e != candidate.id)
+    space = ModelSpace(params, effects, plant_free,
+                       accepted_free + tuple((candidate.id, p) for p in candidate.free))
+    fit = fit_output_error(aligned, space, max_nfev=max_nfev)
+    return Refit(candidate, fit, holdout_cost(aligned, fit.prediction))
+
+
+def effect_summary(effects: Mapping[str, Mapping[str, float]], effect_id: str) -> dict[str, float]:
+    """The effect's parameters as plain floats (for the report)."""
+    return {k: float(v) for k, v in effects[effect_id].items()}

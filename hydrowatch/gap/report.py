@@ -1,0 +1,211 @@
+"""The ``hydrowatch gap`` report (contract.md) and the saved model, from the analysis' fits.
+
+Report keys of the contract: ``mismatch``, ``effects``, ``located``, ``fit`` (held-out NRMSE of
+the nominal, calibrated and final model per sensor), ``calibrated_parameters``, ``summary``.
+Additions (docs/gap.md): ``noise`` (the noise ceiling as NRMSE), ``experiments`` (effects this
+recording cannot show and the run that would), ``trials`` (every candidate judged).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hydrowatch.errors import ParameterError
+from hydrowatch.gap.align import AlignedRecording
+from hydrowatch.gap.calibrate import OutputErrorFit
+from hydrowatch.gap.diagnose import Diagnosis, Trial
+from hydrowatch.gap.locate import noise_std, nrmse, regimes, strongest_regime
+from hydrowatch.plant.effects import resolve_effects
+from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.recording import SENSORS, UNITS
+
+if TYPE_CHECKING:
+    from hydrowatch.gap.analysis import Unidentified
+
+MODEL_SCHEMA = "hydrowatch.gap-model/1"
+"""Schema tag of the saved augmented model (docs/gap.md)."""
+
+EXCESS_RATIO = 1.15
+"""A sensor is mismatched when its held-out NRMSE exceeds its noise ceiling by this factor."""
+
+
+def fit_table(aligned: AlignedRecording, prediction: np.ndarray) -> dict[str, float]:
+    """Held-out NRMSE per sensor, ``{sensor: nrmse}``."""
+    return {s: round(nrmse(aligned.measured[i], prediction[i], aligned.holdout_mask), 5) for i, s in enumerate(SENSORS)}
+
+
+def noise_ceiling(aligned: AlignedRecording, prediction: np.ndarray) -> dict[str, float]:
+    """NRMSE a perfect model would reach: the sensor noise std over the signal std, per sensor."""
+    out = {}
+    for i, s in enumerate(SENSORS):
+        r = aligned.measured[i, aligned.used_mask] - prediction[i, aligned.used_mask]
+        out[s] = round(noise_std(r) / float(aligned.scale[i]), 5)
+    return out
+
+
+def located(aligned: AlignedRecording, prediction: np.ndarray, noise: dict[str, float]) -> list[dict[str, Any]]:
+    """Mismatched sensors, largest excess first, each with the region that holds most of its error."""
+    fit = fit_table(aligned, prediction)
+    mask = aligned.used_mask
+    rows = []
+    for i, s in enumerate(SENSORS):
+        if fit[s] <= EXCESS_RATIO * noise[s]:
+            continue
+        r = aligned.measured[i, mask] - prediction[i, mask]
+        noise_var = (noise[s] * aligned.scale[i]) ** 2
+        found = regimes(r, aligned.voltage[mask], prediction[1, mask], prediction[2, mask], noise_var)
+        best = strongest_regime(found)
+        rows.append((fit[s] ** 2 - noise[s] ** 2, {"sensor": s, "regime": best.label, "share": round(best.share, 3)}))
+    rows.sort(key=lambda row: -row[0])
+    return [row for _, row in rows]
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
+def _effect_entry(aligned: AlignedRecording, trial: Trial, before: np.ndarray, final: OutputErrorFit
+                  ) -> dict[str, Any]:
+    c = trial.refit.candidate
+    params = {k: round(float(v), 6) for k, v in final.effects[c.id].items()}
+    cis = []
+    for p in c.free:
+        lo, hi = final.ci95.get(f"{c.id}.{p}", (float("nan"), float("nan")))
+        cis.append(f"{p} = {params[p]:.4g} (95 % CI {lo:.4g}…{hi:.4g})")
+    b, a = fit_table(aligned, before), fit_table(aligned, trial.refit.fit.prediction)
+    sensor = max(SENSORS, key=lambda s: b[s] - a[s])
+    evidence = (f"held-out cost −{_pct(trial.gain)} (± {_pct(trial.gain_se)}), ΔBIC {trial.delta_bic:.0f}; "
+                f"{', '.join(cis)}; held-out {sensor} NRMSE {_pct(b[sensor])} → {_pct(a[sensor])}")
+    return {"id": c.id, "parameters": params, "evidence": evidence}
+
+
+def _unidentified_entry(u: Unidentified, where: str) -> dict[str, Any]:
+    terms = sorted(u.correction.terms_.items(), key=lambda kv: -abs(kv[1]))
+    names = ", ".join(name for name, _ in terms[:4])
+    evidence = (f"no catalog effect passed; {u.sensor} error lives in {where}; a sparse correction over "
+                f"[{names}] cuts its held-out error by {_pct(u.correction.holdout_gain_)}")
+    return {"id": "unidentified", "parameters": {"sensor": u.sensor, **{k: round(v, 6) for k, v in terms}},
+            "evidence": evidence}
+
+
+def calibrated_table(nominal: PlantParameters, calibrated: OutputErrorFit) -> dict[str, Any]:
+    """``{name: {"value", "ci95", "nominal", "ratio"}}`` for every calibrated parameter (SI units)."""
+    out = {}
+    for name, value in calibrated.values.items():
+        lo, hi = calibrated.ci95[name]
+        ref = getattr(nominal, name)
+        out[name] = {"value": float(value), "ci95": [float(lo), float(hi)], "nominal": ref,
+                     "ratio": round(float(value) / ref, 4)}
+    return out
+
+
+def _parameter_changes(table: dict[str, Any]) -> str:
+    moved = [f"{n} ×{row['ratio']:.2f}" for n, row in table.items()
+             if abs(row["ratio"] - 1) > 0.05 and not (row["ci95"][0] <= row["nominal"] <= row["ci95"][1])]
+    return ", ".join(moved) if moved else "none beyond 5 %"
+
+
+def _fits(fit: dict[str, float]) -> str:
+    return ", ".join(f"{s} {_pct(v)}" for s, v in fit.items())
+
+
+def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_prediction: np.ndarray,
+                 calibrated: OutputErrorFit, diagnosis: Diagnosis, unidentified: list[Unidentified],
+                 after_prediction: np.ndarray) -> dict[str, Any]:
+    """The report dict (module docstring), with a plain-language summary carrying the numbers."""
+    noise = noise_ceiling(aligned, after_prediction)
+    where = located(aligned, calibrated.prediction, noise)
+    effects = []
+    before = calibrated.prediction
+    for trial in diagnosis.accepted:
+        effects.append(_effect_entry(aligned, trial, before, diagnosis.final))
+        before = trial.refit.fit.prediction
+    regime_of = {row["sensor"]: row["regime"] for row in where}
+    effects += [_unidentified_entry(u, regime_of.get(u.sensor, "no single regime")) for u in unidentified]
+    fit = {"nominal": fit_table(aligned, nominal_prediction), "calibrated": fit_table(aligned, calibrated.prediction),
+           "after": fit_table(aligned, after_prediction)}
+    table = calibrated_table(nominal, calibrated)
+    trials = [[{"effect": t.refit.candidate.label, "gain": round(t.gain, 4), "gain_se": round(t.gain_se, 4),
+                "delta_bic": round(t.delta_bic, 1), "explained": round(t.explained, 3),
+                "worst_sensor": round(t.worst_sensor, 3), "passed": t.passed,
+                "added": any(t is a for a in diagnosis.accepted)} for t in rnd]
+              + [{"effect": label, "gain": None, "gain_se": None, "delta_bic": None, "explained": None,
+                  "worst_sensor": None, "passed": False, "added": False}
+                 for label in out]
+              for rnd, out in zip(diagnosis.rounds, diagnosis.scanned_out)]
+    report = {
+        "mismatch": bool(effects), "effects": effects, "located": where, "fit": fit,
+        "calibrated_parameters": table, "noise": noise, "experiments": dict(diagnosis.unrevealable),
+        "trials": trials,
+    }
+    report["summary"] = summary(report, _parameter_changes(table))
+    return report
+
+
+def summary(report: dict[str, Any], changes: str) -> str:
+    """One paragraph in plain words with the numbers (gap-method.md, "Reporting")."""
+    fit, noise = report["fit"], report["noise"]
+    parts = []
+    if report["mismatch"]:
+        names = ", ".join(e["id"] if e["id"] != "unidentified"
+                          else f"an unidentified effect in {e['parameters']['sensor']}" for e in report["effects"])
+        parts.append(f"Missing physics: {names}.")
+        if report["located"]:
+            loc = "; ".join(f"{row['sensor']} error mostly in {row['regime']} (share {row['share']:.2f})"
+                            for row in report["located"])
+            parts.append(f"After calibration the {loc}.")
+        for e in report["effects"]:
+            parts.append(f"{e['id']}: {e['evidence']}.")
+        parts.append(f"Held-out NRMSE calibrated {_fits(fit['calibrated'])} → with the effects {_fits(fit['after'])} "
+                     f"(noise ceiling {_fits(noise)}).")
+    else:
+        above = [s for s in fit["after"] if fit["after"][s] > EXCESS_RATIO * noise[s]]
+        if above:
+            parts.append(f"No missing physics named: no candidate effect or data-driven correction passed, but the "
+                         f"error of {', '.join(above)} stays above the noise level (held-out NRMSE "
+                         f"{_fits(fit['after'])}; noise ceiling {_fits(noise)}); a longer or richer recording may "
+                         "resolve it.")
+        else:
+            parts.append("No missing physics: no candidate effect passed and the remaining error is at the noise "
+                         f"level (held-out NRMSE {_fits(fit['after'])}; noise ceiling {_fits(noise)}).")
+    parts.append(f"Nominal model NRMSE {_fits(fit['nominal'])}; calibrated parameter changes: {changes}.")
+    if report["experiments"]:
+        parts.append("Not testable with this recording: " + "; ".join(
+            f"{k} needs {v}" for k, v in report["experiments"].items()) + ".")
+    return " ".join(parts)
+
+
+def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dict[str, Any]:
+    """The augmented model as a simulator configuration (docs/gap.md, "Saved model")."""
+    effects = {k: {p: float(v) for p, v in vals.items()} for k, vals in final.effects.items()}
+    cli = ";".join(f"{k}:" + ",".join(f"{p}={v:.6g}" for p, v in vals.items()) for k, vals in effects.items())
+    config: dict[str, Any] = {"schema": MODEL_SCHEMA, "parameters": final.parameters.to_dict(), "effects": effects,
+                              "effects_cli": cli}
+    if unidentified:
+        config["corrections"] = {u.sensor: {"unit": UNITS[u.sensor], "terms": u.correction.terms_}
+                                 for u in unidentified}
+    return config
+
+
+def read_model(path: str | Path) -> tuple[PlantParameters, dict[str, dict[str, float]]]:
+    """Plant parameters and effects from a saved model (MODEL_SCHEMA) or a flat parameters JSON file.
+
+    Raises
+    ------
+    ParameterError
+        Unreadable JSON, unknown parameter names or effects out of the catalog's ranges.
+    """
+    text = Path(path).read_text(encoding="utf-8") if Path(path).is_file() else None
+    if text is None:
+        raise ParameterError(f"model file must exist. Got '{path}'. Give a JSON file written by --save-model.")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ParameterError(f"{path} must be valid JSON. Got an error: {exc}.") from None
+    if isinstance(data, dict) and data.get("schema") == MODEL_SCHEMA:
+        return PlantParameters.from_dict(data["parameters"]), resolve_effects(data.get("effects"))
+    return PlantParameters.from_json(text), {}
