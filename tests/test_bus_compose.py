@@ -23,7 +23,7 @@ def test_compose_services_are_valid_hydrowatch_invocations() -> None:
         command = service.get("command")
         if isinstance(command, list) and command[0] == "hydrowatch":
             args = parser.parse_args(command[1:])  # exits (fails the test) on an invalid invocation
-            commands[name] = args.command
+            commands[name] = args.subcommand
             assert service["environment"]["HYDROWATCH_ZENOH_CONNECT"] == "tcp/zenoh:7447"
     assert commands == {"plant": "plant", "record-0": "record", "record-1": "record"}
     shards = sorted(str(parser.parse_args(services[n]["command"][1:]).shard) for n in ("record-0", "record-1"))

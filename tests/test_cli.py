@@ -23,7 +23,7 @@ def test_no_command_prints_help_and_fails(capsys):
 
 def test_every_command_has_help_and_a_name_matching_its_module():
     parser = build_parser()
-    sub = next(a for a in parser._actions if a.dest == "command")
+    sub = next(a for a in parser._actions if a.dest == "subcommand")
     assert set(sub.choices) == set(command_modules())  # type: ignore[arg-type]
     for name, p in sub.choices.items():  # type: ignore[union-attr]
         assert p.description, name
@@ -32,4 +32,4 @@ def test_every_command_has_help_and_a_name_matching_its_module():
 def test_only_the_chosen_command_is_built():
     parser = build_parser(["-v", "info", "x.mcap"])
     args = parser.parse_args(["-v", "info", "x.mcap"])
-    assert args.command == "info" and args.verbose == 1 and callable(args._run)
+    assert args.subcommand == "info" and args.verbose == 1 and callable(args._run)

@@ -81,3 +81,23 @@ def test_bad_input_is_one_clean_line(tmp_path, capsys, args, message):
     captured = capsys.readouterr()
     assert message in captured.err and len(captured.err.strip().splitlines()) == 1
     assert captured.out == ""
+
+
+def test_a_model_saved_by_gap_drives_the_simulation(tmp_path, capsys):
+    """--nominal takes 'hydrowatch gap --save-model' output: its parameters and its effects."""
+    from hydrowatch.gap.report import MODEL_SCHEMA
+
+    heavier = PlantParameters().replace(TL=13.0)
+    model = {"schema": MODEL_SCHEMA, "parameters": heavier.to_dict(),
+             "effects": {"quadratic_drag": {"Kd": 0.05}}}
+    (tmp_path / "model.json").write_text(json.dumps(model))
+    for name, extra in (("plain", []), ("model", ["--nominal", str(tmp_path / "model.json")])):
+        assert main(["simulate", "--out", str(tmp_path / name), "--states", "healthy", "--seconds", "5",
+                     "--volts", "1.9:2.1", "--no-noise", "--format", "parquet", *extra]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["effects"] == {"quadratic_drag": {"Kd": 0.05}}
+    plain = read_recording(tmp_path / "plain" / "healthy.parquet")
+    saved = read_recording(tmp_path / "model" / "healthy.parquet")
+    # A heavier brake plus drag: the machine runs slower and the shaft carries more torque.
+    assert saved["speed"][-200:].mean() < 0.95 * plain["speed"][-200:].mean()
+    assert saved["torque"][-200:].mean() > plain["torque"][-200:].mean() + 2.0

@@ -45,7 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--command", type=Path, help="replay the 'voltage' column of a CSV/Parquet file instead")
     parser.add_argument("--no-noise", action="store_true", help="no sensor noise")
     parser.add_argument("--effects", default="", help="effects to switch on: 'id[:k=v,...];id2' (plant-model.md)")
-    parser.add_argument("--nominal", type=Path, help="healthy-machine parameters, JSON (default: nominal)")
+    parser.add_argument("--nominal", type=Path,
+                        help="healthy-machine parameters, JSON: flat parameters or a model saved by "
+                             "'hydrowatch gap --save-model' (its effects are switched on too; --effects adds to them)")
     parser.add_argument("--format", choices=("mcap", "parquet"), default="mcap", help="file format (default mcap)")
     parser.add_argument("--seed", type=int, default=0, help="data set seed; each state derives its own (default 0)")
 
@@ -67,12 +69,16 @@ def _states(args: argparse.Namespace) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, write one file per state, print the JSON summary; returns 0."""
+    from hydrowatch.gap import read_model
     from hydrowatch.io import write_recording
 
     states = _states(args)
     volts = parse_volts(args.volts)
-    effects = parse_effects(args.effects)
-    nominal = PlantParameters.from_json(args.nominal) if args.nominal is not None else None
+    nominal: PlantParameters | None = None
+    effects: dict[str, dict[str, float]] = {}
+    if args.nominal is not None:
+        nominal, effects = read_model(args.nominal)
+    effects = {**effects, **parse_effects(args.effects)}
     command = read_command(args.command) if args.command is not None else None
     seconds = command.size / SAMPLE_RATE_HZ if command is not None else n_samples(args.seconds) / SAMPLE_RATE_HZ
     args.out.mkdir(parents=True, exist_ok=True)
