@@ -25,6 +25,8 @@ def test_compose_services_are_valid_hydrowatch_invocations() -> None:
             args = parser.parse_args(command[1:])  # exits (fails the test) on an invalid invocation
             commands[name] = args.subcommand
             assert service["environment"]["HYDROWATCH_ZENOH_CONNECT"] == "tcp/zenoh:7447"
-    assert commands == {"plant": "plant", "record-0": "record", "record-1": "record"}
-    shards = sorted(str(parser.parse_args(services[n]["command"][1:]).shard) for n in ("record-0", "record-1"))
-    assert shards == ["0/2", "1/2"]
+    assert commands == {"plant": "plant", "record-0": "record", "record-1": "record", "trainer": "trainer",
+                        "score-0": "scorer", "score-1": "scorer"}
+    for pair in (("record-0", "record-1"), ("score-0", "score-1")):
+        shards = sorted(str(parser.parse_args(services[n]["command"][1:]).shard) for n in pair)
+        assert shards == ["0/2", "1/2"], pair
