@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydrowatch.bus import BusSettings, Subscriber, free_port, open_session, wait_alive
+from hydrowatch.bus import BusSettings, Subscriber, alive, free_port, open_session, wait_alive
 from hydrowatch.cli import main
 from hydrowatch.io.codec import arrays_from_sensor_chunk
 from hydrowatch.io.mcap_io import Recovery, iter_messages
@@ -159,3 +159,22 @@ def test_up_starts_and_stops_the_services_together(tmp_path: Path) -> None:
     for t, recoveries in machines.values():
         assert t.size >= 200 and all(r.finished for r in recoveries)
         assert_contiguous(t)
+
+
+def test_plant_declares_machine_tokens_only_when_asked() -> None:
+    # per-machine tokens make every subscriber of the fleet pay per machine and message (docs/bus.md)
+    port = free_port()
+    plants = [start("services.plant", "--fleet", fleet, "--machines", 2, "--speed", 1, "--bus-port", port, *flag)
+              for fleet, flag in (("tok", ["--machine-tokens"]), ("plain", []))]
+    try:
+        with open_session(BusSettings(mode="peer", connect=(f"tcp/127.0.0.1:{port}",))) as session:
+            for fleet in ("tok", "plain"):
+                assert wait_alive(session, "plant", fleet, timeout=60)
+            tokens = {fleet: [k.split("/")[2] for k in alive(session, f"hydro/{fleet}/*/status")]
+                      for fleet in ("tok", "plain")}
+        assert [stop(p) for p in plants] == [0, 0]
+    finally:
+        for p in plants:
+            p.kill()
+    assert sorted(tokens["tok"])[:2] == ["m000", "m001"] and len(tokens["tok"]) == 3
+    assert len(tokens["plain"]) == 1 and tokens["plain"][0].startswith("plant.")

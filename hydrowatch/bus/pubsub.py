@@ -10,7 +10,6 @@ once per key and goes on (contract, "Bus").
 from __future__ import annotations
 
 import logging
-import queue
 import struct
 import threading
 import time
@@ -21,6 +20,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 import zenoh
 
+from hydrowatch.bus.channel import WakingChannel
 from hydrowatch.bus.keys import Key, parse_key
 from hydrowatch.bus.shard import Shard
 from hydrowatch.errors import DataError
@@ -132,9 +132,12 @@ class Message:
 class Subscriber:
     """Receives record batches of one schema on one or more key expressions.
 
-    Samples arrive on zenoh's threads and wait in a bounded queue; when it is full the zenoh
+    Samples wait in a bounded zenoh FIFO channel per key expression; when it is full the zenoh
     thread waits, which (with ``BLOCK`` publishers) slows the publishers down instead of losing
-    data. Decoding happens in :meth:`recv`, on the caller's thread.
+    data. No Python runs on zenoh's threads: the caller's thread takes samples out, decodes and
+    validates them in :meth:`recv` / :meth:`recv_many`, and sleeps while there are none
+    (:class:`hydrowatch.bus.channel.WakingChannel`). The receive time is taken when the sample
+    is taken out.
 
     Parameters
     ----------
@@ -147,7 +150,7 @@ class Subscriber:
     shard : Shard
         Only machines of this shard are kept; the others are counted in ``outside_shard``.
     capacity : int
-        Messages the queue holds before the zenoh thread waits.
+        Messages each key expression's channel holds before the zenoh thread waits.
     """
 
     def __init__(
@@ -165,35 +168,40 @@ class Subscriber:
         self.received = 0
         self.outside_shard = 0
         self.undecodable: Counter[str] = Counter()
-        self._queue: queue.Queue[tuple[str, bytes, int, int]] = queue.Queue(maxsize=capacity)
-        self._closed = threading.Event()
-        self._subscribers = [session.declare_subscriber(k, self._on_sample) for k in self.key_exprs]
+        self._keys: dict[str, tuple[Key, pa.Schema]] = {}
+        self._subscribers = [
+            session.declare_subscriber(k, zenoh.handlers.FifoChannel(capacity)) for k in self.key_exprs
+        ]
+        self._ready = threading.Event()
+        # the channels outlive their subscribers: after close() they still hold what had arrived
+        self._channels = [WakingChannel(sub.handler, self._ready) for sub in self._subscribers]
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if self.shard.count > 1:
-            parts = key.split("/")
-            if len(parts) > 2 and not self.shard.includes(parts[2]):
-                self.outside_shard += 1
-                return
-        attachment = sample.attachment
-        stamp = attachment.to_bytes() if attachment is not None else b""
-        published = _STAMP.unpack(stamp)[0] if len(stamp) == _STAMP.size else 0
-        item = (key, sample.payload.to_bytes(), time.time_ns(), published)
-        while not self._closed.is_set():
-            try:
-                self._queue.put(item, timeout=0.05)
-                return
-            except queue.Full:
-                continue
+    def _take(self) -> tuple[str, bytes, int, int] | None:
+        """The next queued sample of this shard as (key, payload, receive ns, publish ns), or None."""
+        for channel in self._channels:
+            while (sample := channel.take()) is not None:
+                key = str(sample.key_expr)
+                if self.shard.count > 1:
+                    parts = key.split("/")
+                    if len(parts) > 2 and not self.shard.includes(parts[2]):
+                        self.outside_shard += 1
+                        continue
+                attachment = sample.attachment
+                stamp = attachment.to_bytes() if attachment is not None else b""
+                published = _STAMP.unpack(stamp)[0] if len(stamp) == _STAMP.size else 0
+                return key, sample.payload.to_bytes(), time.time_ns(), published
+        return None
 
     def _decode(self, item: tuple[str, bytes, int, int]) -> Message | None:
         key, payload, received, published = item
         self.received += 1
         try:
-            parsed = parse_key(key)
-            schema = self.schema if self.schema is not None else schema_by_name(TOPIC_KINDS[parsed.topic])
-            return Message(parsed, decode_batch(payload, schema, source=key), payload, received, published)
+            known = self._keys.get(key)
+            if known is None:
+                parsed = parse_key(key)
+                schema = self.schema if self.schema is not None else schema_by_name(TOPIC_KINDS[parsed.topic])
+                known = self._keys[key] = (parsed, schema)
+            return Message(known[0], decode_batch(payload, known[1], source=key), payload, received, published)
         except DataError as exc:
             self.undecodable[key] += 1
             if self.undecodable[key] == 1:
@@ -204,25 +212,42 @@ class Subscriber:
         """The next decodable message, or None when none came within ``timeout`` seconds."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
-            try:
-                item = self._queue.get(timeout=remaining)
-            except queue.Empty:
+            item = self._take()
+            if item is not None:
+                message = self._decode(item)
+                if message is not None:
+                    return message
+                continue
+            # every channel is empty: let the wakers watch them and sleep until one hands a sample over
+            self._ready.clear()
+            if any([channel.watch() for channel in self._channels]):
+                continue
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
                 return None
+            self._ready.wait(left)
+
+    def recv_many(self, limit: int = 1000, timeout: float | None = None) -> list[Message]:
+        """Up to ``limit`` decodable messages: waits up to ``timeout`` seconds for the first, then
+        takes only what is already queued (empty when nothing came in time).
+
+        One call per burst instead of one per message: what a consumer that keeps up with
+        thousands of messages per second (the recorder) wants.
+        """
+        first = self.recv(timeout)
+        if first is None:
+            return []
+        messages = [first]
+        while len(messages) < limit and (item := self._take()) is not None:
             message = self._decode(item)
             if message is not None:
-                return message
+                messages.append(message)
+        return messages
 
     def drain(self) -> Iterator[Message]:
         """Every message already queued, without waiting (after :meth:`close`, to flush)."""
-        while True:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                return
-            message = self._decode(item)
-            if message is not None:
-                yield message
+        while messages := self.recv_many(timeout=0.0):
+            yield from messages
 
     @property
     def undecodable_total(self) -> int:
@@ -231,10 +256,11 @@ class Subscriber:
 
     def close(self) -> None:
         """Stop receiving (undeclare); queued messages stay available to :meth:`drain`."""
-        self._closed.set()
         for sub in self._subscribers:
             sub.undeclare()
         self._subscribers = []
+        for channel in self._channels:
+            channel.close()
 
     def __enter__(self) -> Subscriber:
         return self

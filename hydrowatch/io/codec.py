@@ -10,7 +10,9 @@ measured in ``benchmarks/bench_io_codec.py`` and written down in ``docs/formats.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -20,6 +22,7 @@ from hydrowatch.schemas import (
     SENSOR_CHUNK,
     SchemaMismatchError,
     SchemaVersionError,
+    schema_name,
     validate,
     wire_schema,
 )
@@ -29,6 +32,20 @@ LABEL_FIELD = "state"
 
 
 _WIRE = wire_schema(SENSOR_CHUNK)
+_FRAME = struct.Struct("<Ii")
+_CONTINUATION = 0xFFFFFFFF
+_END_OF_STREAM = _FRAME.pack(_CONTINUATION, 0)
+_U16 = struct.Struct("<H").unpack_from
+_I32 = struct.Struct("<i").unpack_from
+_U32 = struct.Struct("<I").unpack_from
+_I64 = struct.Struct("<q").unpack_from
+_READ_ERRORS = (pa.ArrowInvalid, pa.ArrowIOError, EOFError, OSError)
+_CACHE_SIZE = 64
+"""Distinct schemas each cache holds (a handful in practice: one per message kind and column set)."""
+_ENCODE_CACHE: list[tuple[pa.Schema, bytes | None]] = []
+"""Schema → its serialised schema message (None: encode with a stream writer)."""
+_DECODE_CACHE: dict[tuple[bytes, int], _KnownSchema] = {}
+"""(schema message bytes, id of the expected schema) → what full validation found for them."""
 
 
 class UndecodableMessageError(DataError):
@@ -37,6 +54,10 @@ class UndecodableMessageError(DataError):
 
 def encode_batch(batch: pa.RecordBatch) -> bytes:
     """Serialise one record batch as an Arrow IPC stream (schema message, batch, end marker).
+
+    The schema message is the same for every batch of a schema, so it is serialised once and
+    cached: a message costs one ``batch.serialize()`` (~3x faster than a stream writer per call,
+    same bytes).
 
     Parameters
     ----------
@@ -48,16 +69,49 @@ def encode_batch(batch: pa.RecordBatch) -> bytes:
     bytes
         The payload to publish on the bus or store in an MCAP message.
     """
+    prefix = _schema_prefix(batch)
+    if prefix is None:
+        return _stream_bytes(batch)
+    return b"".join((prefix, batch.serialize(), _END_OF_STREAM))  # join reads the Arrow buffer in place
+
+
+def _stream_bytes(batch: pa.RecordBatch) -> bytes:
     sink = pa.BufferOutputStream()
     with pa.ipc.new_stream(sink, batch.schema) as writer:
         writer.write_batch(batch)
     return sink.getvalue().to_pybytes()
 
 
+def _schema_prefix(batch: pa.RecordBatch) -> bytes | None:
+    """The cached schema message of ``batch``'s schema (None: encode with a stream writer)."""
+    schema = batch.schema
+    for known, prefix in _ENCODE_CACHE:
+        if known.equals(schema, check_metadata=True):
+            return prefix
+    return _cache_schema_prefix(batch)
+
+
+def _cache_schema_prefix(batch: pa.RecordBatch) -> bytes | None:
+    """Remember the schema message of ``batch``'s schema when schema + ``serialize()`` + end marker
+    gives exactly the bytes of a stream writer (not so with dictionaries); None: use the writer."""
+    stream = _stream_bytes(batch)
+    prefix = batch.schema.serialize().to_pybytes()
+    if stream != b"".join((prefix, batch.serialize().to_pybytes(), _END_OF_STREAM)):
+        prefix = None
+    if len(_ENCODE_CACHE) >= _CACHE_SIZE:
+        _ENCODE_CACHE.pop(0)
+    _ENCODE_CACHE.append((batch.schema, prefix))
+    return prefix
+
+
 def decode_batch(
     data: bytes | memoryview | pa.Buffer, expected: pa.Schema, source: str | None = None
 ) -> pa.RecordBatch:
     """Decode one message and check it against ``expected``.
+
+    The first message of each distinct schema message (the stream's first bytes) is read and
+    validated in full; later messages whose schema bytes are identical reuse that verdict and only
+    read the batch and count nulls in the required fields. Same checks, ~5x less time per message.
 
     Parameters
     ----------
@@ -79,17 +133,101 @@ def decode_batch(
     DataError
         Right schema and version but a field is missing, mistyped or null where it must not be.
     """
+    buffer = data if isinstance(data, pa.Buffer) else pa.py_buffer(data)
+    prefix = _schema_message(data)
+    known = None if prefix is None else _DECODE_CACHE.get((prefix, id(expected)))
+    if prefix is None or known is None or known.expected is not expected:
+        return _decode_in_full(buffer, prefix, expected, source)
     try:
-        reader = pa.ipc.open_stream(pa.py_buffer(data))
+        batch = pa.ipc.read_record_batch(buffer.slice(len(prefix)), known.schema)
+    except _READ_ERRORS as exc:
+        raise _undecodable(buffer, exc, source) from None
+    for index, nulls in zip(known.required, _required_null_counts(data, len(prefix), batch, known)):
+        if nulls:
+            name = known.schema.names[index]
+            raise DataError(f"{schema_name(expected)} field '{name}' must have no nulls. Got {nulls}.", source)
+    return batch
+
+
+def _required_null_counts(
+    data: bytes | memoryview | pa.Buffer, start: int, batch: pa.RecordBatch, known: _KnownSchema
+) -> list[int]:
+    """Null counts of the required columns, read from the batch message's field nodes (a flatbuffer
+    Arrow has already verified; ~1.6 µs instead of ~5.7 µs through the columns) when the schema is
+    flat, else from the columns."""
+    if known.flat:
+        try:
+            fb = start + 8  # after the continuation marker and the metadata length
+            root = fb + _U32(data, fb)[0]
+            header = _table_field(data, root, 2)  # Message.header: the RecordBatch table
+            table = header + _U32(data, header)[0]
+            nodes_at = _table_field(data, table, 1)  # RecordBatch.nodes: [FieldNode{length, null_count}]
+            nodes = nodes_at + _U32(data, nodes_at)[0]
+            if header and nodes_at and _U32(data, nodes)[0] == len(known.schema):
+                return [_I64(data, nodes + 12 + 16 * i)[0] for i in known.required]
+        except struct.error:
+            pass
+    return [batch.column(i).null_count for i in known.required]
+
+
+def _table_field(data: bytes | memoryview | pa.Buffer, table: int, index: int) -> int:
+    """Position of field ``index`` of the flatbuffer table at ``table`` (0 when absent)."""
+    vtable = table - _I32(data, table)[0]
+    slot = 4 + 2 * index
+    if slot >= _U16(data, vtable)[0]:
+        return 0
+    offset = _U16(data, vtable + slot)[0]
+    return table + offset if offset else 0
+
+
+class _KnownSchema(NamedTuple):
+    """A schema message that passed full validation against ``expected``."""
+
+    expected: pa.Schema
+    schema: pa.Schema
+    required: tuple[int, ...]
+    """Column indexes of the fields that must hold no nulls."""
+    flat: bool
+    """No nested types: field node i is column i."""
+
+
+def _undecodable(buffer: pa.Buffer, exc: BaseException, source: str | None) -> UndecodableMessageError:
+    reason = str(exc).splitlines()[0] if str(exc) else "no record batch"
+    return UndecodableMessageError(
+        f"message must be an Arrow IPC stream with one record batch. Got {buffer.size} bytes that are not ({reason}).",
+        source,
+    )
+
+
+def _schema_message(data: bytes | memoryview | pa.Buffer) -> bytes | None:
+    """The stream's first message (continuation marker, length, flatbuffer) as bytes; None if unframed."""
+    try:
+        marker, length = _FRAME.unpack_from(data, 0)
+    except struct.error:
+        return None
+    view = memoryview(data)
+    if marker != _CONTINUATION or not 0 < length <= view.nbytes - 8:
+        return None
+    return bytes(view[: 8 + length])
+
+
+def _decode_in_full(
+    buffer: pa.Buffer, prefix: bytes | None, expected: pa.Schema, source: str | None
+) -> pa.RecordBatch:
+    """Read the stream and validate every field; remember the schema message when it passes."""
+    try:
+        reader = pa.ipc.open_stream(buffer)
         batch = reader.read_next_batch()
-    except (pa.ArrowInvalid, pa.ArrowIOError, StopIteration, OSError) as exc:
-        size = len(data) if not isinstance(data, pa.Buffer) else data.size
-        reason = str(exc).splitlines()[0] if str(exc) else "no record batch"
-        raise UndecodableMessageError(
-            f"message must be an Arrow IPC stream with one record batch. Got {size} bytes that are not ({reason}).",
-            source,
-        ) from None
+    except (*_READ_ERRORS, StopIteration) as exc:
+        raise _undecodable(buffer, exc, source) from None
     validate(batch, expected, source, require_metadata=True)
+    if prefix is not None:
+        if len(_DECODE_CACHE) >= _CACHE_SIZE:
+            _DECODE_CACHE.clear()
+        names = batch.schema.names
+        required = tuple(names.index(f.name) for f in expected if not f.nullable and f.name in names)
+        flat = all(f.type.num_fields == 0 for f in batch.schema)
+        _DECODE_CACHE[(prefix, id(expected))] = _KnownSchema(expected, batch.schema, required, flat)
     return batch
 
 
@@ -121,7 +259,8 @@ def sensor_chunk_from_arrays(t: np.ndarray, channels: Mapping[str, np.ndarray]) 
             continue
         values = columns[field.name]
         if field.name == LABEL_FIELD:
-            arrays.append(pa.array(np.asarray(values, dtype=object), type=pa.string()))
+            # a list converts ~70x faster than a numpy object array (pyarrow 25)
+            arrays.append(pa.array(list(values), type=pa.string()))
         else:
             arrays.append(pa.array(np.asarray(values, dtype=np.float64)))
         fields.append(field)

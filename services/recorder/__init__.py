@@ -26,6 +26,8 @@ NAME = "record"
 HELP = "record key expressions of the bus into per-machine MCAP files, rotated by size or time"
 QUIET_S = 0.2
 """On stop, the recorder keeps receiving until no message came for this long (at most ``--drain`` s), s."""
+BURST = 1000
+"""Messages the recorder takes from its queue at a time (one clock read, one loop, per burst)."""
 log = get_logger("services.recorder")
 
 
@@ -44,12 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     parser.add_argument("--drain", type=float, default=20.0,
                         help="on stop, keep recording what is still arriving for up to this many seconds (default 20)")
+    parser.add_argument("--heartbeat", type=float, default=1.0, metavar="SECONDS",
+                        help="seconds between status heartbeats with the message counters (default 1)")
     add_bus_arguments(parser)
 
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Record until ``stop`` (or ``--seconds``), then drain and finish every file; returns 0."""
-    for name in ("chunk_size", "flush", "rotate_mb", "rotate_s"):
+    for name in ("chunk_size", "flush", "rotate_mb", "rotate_s", "heartbeat"):
         if not getattr(args, name) > 0:
             raise ParameterError(f"--{name.replace('_', '-')} must be > 0. Got {getattr(args, name)}.")
     keys = args.keys or [key_expr(args.fleet)]
@@ -65,27 +69,24 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         reporter = StatusReporter(session, fleet, NAME, lambda: {
             "messages_in": subscriber.received, "messages_out": files.messages,
             "messages_undecodable": subscriber.undecodable_total,
-        })
+        }, interval=args.heartbeat)
         try:
             reporter.start()
             reporter.status = "running"
             event(log, "recorder started", keys=",".join(keys), out=args.out, shard=str(args.shard))
             next_tick = time.monotonic() + args.flush
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                message = subscriber.recv(timeout=min(0.1, args.flush))
-                if message is not None:
-                    files.write(message)
+                files.write_many(subscriber.recv_many(BURST, timeout=min(0.1, args.flush)))
                 if time.monotonic() >= next_tick:
                     files.tick()
                     next_tick = time.monotonic() + args.flush
             reporter.status = "draining"
             # what is still on its way arrives within a moment: keep receiving until the bus is quiet
             give_up = time.monotonic() + args.drain
-            while time.monotonic() < give_up and (message := subscriber.recv(timeout=QUIET_S)) is not None:
-                files.write(message)
+            while time.monotonic() < give_up and (messages := subscriber.recv_many(BURST, timeout=QUIET_S)):
+                files.write_many(messages)
             subscriber.close()
-            for message in subscriber.drain():
-                files.write(message)
+            files.write_many(subscriber.drain())
         finally:
             subscriber.close()
             files.close()

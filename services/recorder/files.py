@@ -10,9 +10,11 @@ seconds, whichever comes first: that bounds what a ``kill -9`` can lose.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hydrowatch.bus.keys import Key
 from hydrowatch.bus.pubsub import Message
 from hydrowatch.io.mcap_io import McapWriter
 from hydrowatch.schemas import SCHEMA_VERSION, schema_name, schema_version, units
@@ -58,6 +60,7 @@ class RecordingFiles:
     messages: int = 0
     _open: dict[tuple[str, str], _Open] = field(default_factory=dict)
     _sequence: int = 0
+    _channels: dict[Key, tuple[str, str, int, bool]] = field(default_factory=dict)
 
     def _new_file(self, message: Message) -> _Open:
         fleet, machine = message.key.fleet, message.key.machine
@@ -85,26 +88,37 @@ class RecordingFiles:
 
     def write(self, message: Message) -> None:
         """Append one message: log time = receive time, publish time = sample time of the chunk start."""
-        machine = (message.key.fleet, message.key.machine)
-        current = self._open.get(machine)
-        if current is not None and self._due(current):
-            current.writer.close()
-            current = None
-        if current is None:
-            current = self._open[machine] = self._new_file(message)
-        batch = message.batch
-        publish = message.publish_time_ns
-        if message.key.topic == "sensors" and batch.num_rows:
-            publish = max(0, int(round(batch.column("t")[0].as_py() * 1e9)))
-        current.writer.write_encoded(
-            str(message.key), message.payload, message.receive_time_ns,
-            schema_name(batch.schema) or "", schema_version(batch.schema) or SCHEMA_VERSION, publish,
-        )
-        current.messages += 1
-        self.messages += 1
+        self.write_many([message])
 
-    def _due(self, current: _Open) -> bool:
-        if time.monotonic() - current.opened >= self.rotate_s:
+    def write_many(self, messages: Iterable[Message]) -> None:
+        """Append messages in order (what one :meth:`Subscriber.recv_many` returned): the clock is read
+        once for the whole burst, channel facts (topic, schema name and version) once per key."""
+        now = time.monotonic()
+        for message in messages:
+            machine = message.key[:2]
+            current = self._open.get(machine)
+            if current is not None and self._due(current, now):
+                current.writer.close()
+                current = None
+            if current is None:
+                current = self._open[machine] = self._new_file(message)
+            channel = self._channels.get(message.key)
+            if channel is None:
+                schema = message.batch.schema
+                channel = self._channels[message.key] = (
+                    str(message.key), schema_name(schema) or "", schema_version(schema) or SCHEMA_VERSION,
+                    message.key.topic == "sensors",
+                )
+            topic, name, version, sensors = channel
+            publish = message.publish_time_ns
+            if sensors and message.batch.num_rows:
+                publish = max(0, int(round(message.batch.column("t")[0].as_py() * 1e9)))
+            current.writer.write_encoded(topic, message.payload, message.receive_time_ns, name, version, publish)
+            current.messages += 1
+            self.messages += 1
+
+    def _due(self, current: _Open, now: float) -> bool:
+        if now - current.opened >= self.rotate_s:
             return True
         # stat every 64 messages: the file size is what rotation bounds, and stat is not free
         return current.messages % 64 == 0 and current.writer.path.stat().st_size >= self.rotate_bytes
