@@ -10,8 +10,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from hydrowatch.cli import main
-from hydrowatch.sysid import search_orders
-from hydrowatch.sysid.pem import filtered_white_noise, simulate_box_jenkins
+from hydrowatch.errors import ParameterError
+from hydrowatch.sysid import BoxJenkins, search_orders
+from hydrowatch.sysid.order_search import akaike
+from hydrowatch.sysid.pem import STUDY_MODEL_3_24, filtered_white_noise, simulate_box_jenkins
 
 TRUE = {"nb": 2, "nf": 2, "nc": 1, "nd": 1, "delay": 2}
 
@@ -33,6 +35,37 @@ def test_search_finds_the_true_orders(start) -> None:
         result = search_orders(*data(3000, seed), start)
         assert result.orders == TRUE, result.history
         assert result.history[0]["action"] == "start"
+
+
+@pytest.mark.slow
+def test_search_finds_the_study_orders_on_eq_3_24() -> None:
+    """Eq. 3.24 (4, 4, 4, 5, K = 4) from the study's preliminary orders (Table 3.2: 4, 4, 1, 3).
+
+    Its H has a nearly cancelling pole-zero pair (~0.11 apart), so several 9-parameter noise models
+    pass Q; at N = 30,000 the AIC among admissible candidates picks the true one (about 10 CPU-s).
+    """
+    m = STUDY_MODEL_3_24
+    rng = np.random.default_rng(0)
+    u = filtered_white_noise(30000, rng)
+    y = simulate_box_jenkins(m["b"], m["f"], m["c"], m["d"], 4, u, 0.5 * rng.standard_normal(u.size))
+    result = search_orders(u, y, {"nb": 4, "nf": 4, "nc": 1, "nd": 3, "delay": 4}, max_noise_order=5)
+    assert result.orders == {"nb": 4, "nf": 4, "nc": 4, "nd": 5, "delay": 4}, result.history
+    same_g = [h for h in result.history if [h["orders"][k] for k in ("nb", "nf", "delay")] == [4, 4, 4]]
+    tried = {(h["orders"]["nc"], h["orders"]["nd"]): h for h in same_g}
+    assert tried[(1, 3)]["Q_p"] < 1e-3  # Table 3.3: the preliminary H under-fits
+    # the same-size rival with near-common factors of C and D is fitted but not admissible
+    rival = BoxJenkins(nb=4, nf=4, nc=5, nd=4, delay=4).fit(u, y)
+    assert any(pair["model"] == "H" for pair in rival.validation_["cancellations"])
+    assert akaike(result.model) == pytest.approx(tried[(4, 5)]["aic"])
+    assert akaike(result.model) < min(h["aic"] for k, h in tried.items() if sum(k) <= 8)
+
+
+def test_search_refuses_bad_settings() -> None:
+    u, y = data(600, 0)
+    with pytest.raises(ParameterError, match="patience must be"):
+        search_orders(u, y, TRUE, patience=0)
+    with pytest.raises(ParameterError, match="max_noise_order must be"):
+        search_orders(u, y, TRUE, max_noise_order=-1)
 
 
 def test_identify_command_prints_the_contract_json(tmp_path, capsys) -> None:
