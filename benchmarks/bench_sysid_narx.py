@@ -58,9 +58,10 @@ def bench_fit(u: np.ndarray, y: np.ndarray, u_test: np.ndarray, y_test: np.ndarr
     try:
         from hydrowatch.sysid.boxjenkins import BoxJenkins
 
-        bj = BoxJenkins(nb=4, nf=4, nc=4, nd=5, delay=4).fit(u, y)  # the study's Table 3.11 orders
+        # The study's Table 3.11 orders; delay 0: the simulator answers after one sample (docs/sysid.md).
+        bj = BoxJenkins(nb=4, nf=4, nc=4, nd=5, delay=0).fit(u, y)
         bj_nrmse = nrmse(y_test[20:], bj.predict(u_test, y_test, steps_ahead=1)[20:])
-        print(f"  Box-Jenkins 4/4/4/5, delay 4, held-out {bj_nrmse:.4f} (NARX / BJ = {held_out / bj_nrmse:.2f})")
+        print(f"  Box-Jenkins 4/4/4/5, delay 0, held-out {bj_nrmse:.4f} (NARX / BJ = {held_out / bj_nrmse:.2f})")
     except ImportError:
         print("  Box-Jenkins: hydrowatch.sysid.boxjenkins not available")
     corr = model.residual_correlations(u_test, y_test, max_lag=20)
@@ -85,44 +86,6 @@ def bench_one_step(model: NARX) -> None:
               f"{cpu_rate / ONE_STEP_TARGET:.1f} CPU)")
 
 
-def bench_sysidentpy(u: np.ndarray, y: np.ndarray, u_test: np.ndarray, y_test: np.ndarray, epochs: int) -> None:
-    """SysIdentPy's neural NARX (Adam on the same 15/15 lines, 35 sigmoid neurons), if installed."""
-    try:
-        import torch
-        from sysidentpy.basis_function import Polynomial
-        from sysidentpy.neural_network import NARXNN
-    except ImportError:
-        print("SysIdentPy: not installed, comparison skipped. Install it in a separate environment "
-              "(`python -m venv /tmp/sid && /tmp/sid/bin/pip install sysidentpy torch` plus this package) "
-              "and rerun; do not add it to the project venv.")
-        return
-
-    class Net(torch.nn.Module):
-        def __init__(self) -> None:
-            super().__init__()
-            self.hidden = torch.nn.Linear(30, 35)
-            self.out = torch.nn.Linear(35, 1)
-
-        def forward(self, x: torch.Tensor) -> torch.Tensor:
-            return self.out(torch.sigmoid(self.hidden(x)))
-
-    try:
-        wall = time.perf_counter()
-        model = NARXNN(net=Net(), ylag=15, xlag=15, basis_function=Polynomial(degree=1), model_type="NARMAX",
-                       loss_func="mse_loss", optimizer="Adam", epochs=epochs, verbose=False,
-                       optim_params={"lr": 1e-3})
-        scale_u, scale_y = (u.mean(), u.std()), (y.mean(), y.std())
-        model.fit(X=((u - scale_u[0]) / scale_u[1])[:, None], y=((y - scale_y[0]) / scale_y[1])[:, None])
-        wall = time.perf_counter() - wall
-        y_hat = model.predict(X=((u_test - scale_u[0]) / scale_u[1])[:, None],
-                              y=((y_test - scale_y[0]) / scale_y[1])[:, None], steps_ahead=1)
-        y_hat = np.asarray(y_hat).ravel() * scale_y[1] + scale_y[0]
-        print(f"SysIdentPy NARXNN 15/15/35 ({epochs} Adam epochs): fit wall {wall:.1f} s, held-out one-step NRMSE "
-              f"{nrmse(y_test[15:], y_hat[15:]):.4f}")
-    except Exception as exc:  # noqa: BLE001 - a third-party API we do not pin; report and go on
-        print(f"SysIdentPy: comparison failed ({type(exc).__name__}: {exc}); its API may have changed.")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3,000 samples and 40 iterations")
@@ -132,7 +95,8 @@ def main() -> None:
     u_fit, y_fit, u_test, y_test = u[:n_fit], y[:n_fit], u[n_fit:], y[n_fit:]
     model = bench_fit(u_fit, y_fit, u_test, y_test, max_iter)
     bench_one_step(model)
-    bench_sysidentpy(u_fit, y_fit, u_test, y_test, epochs=50 if args.quick else 500)
+    print("Peers (SysIdentPy's NARXNN, SIPPY's BJ): benchmarks/peers/.venv/bin/python "
+          "benchmarks/bench_sysid_peers.py (docs/sysid.md)")
 
 
 if __name__ == "__main__":
