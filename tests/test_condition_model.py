@@ -14,7 +14,8 @@ from hydrowatch.plant.faults import STUDY_STATES, state_parameters
 CHANNELS = ("voltage", "flow", "speed", "torque")
 
 
-def _windows(states, command: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+def windows_of(states, command: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+    """Raw 4-channel windows of one simulated machine per state, all under one command (shared by tests)."""
     sim = PlantSimulator([state_parameters(s) for s in states], seed=seed)
     sim.settle(float(command[0]))
     out = sim.step(command)
@@ -24,9 +25,9 @@ def _windows(states, command: np.ndarray, seed: int) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def model_and_data():
-    train = _windows(STUDY_STATES, filtered_noise(60, (0, 4), seed=1), seed=2)
-    duty = _windows(STUDY_STATES, duty_cycle(80, (0, 4), seed=3), seed=4)
-    unseen = _windows(("valve_coil_alert", "relief_spring_alert"), filtered_noise(30, (0, 4), seed=5), seed=6)
+    train = windows_of(STUDY_STATES, filtered_noise(60, (0, 4), seed=1), seed=2)
+    duty = windows_of(STUDY_STATES, duty_cycle(80, (0, 4), seed=3), seed=4)
+    unseen = windows_of(("valve_coil_alert", "relief_spring_alert"), filtered_noise(30, (0, 4), seed=5), seed=6)
     return ConditionModel().fit(train), train, duty, unseen
 
 
@@ -39,9 +40,9 @@ def test_verdicts_hold_on_a_duty_cycle(model_and_data):
 
 def test_level_box_tells_look_alike_valve_faults_apart_in_a_hold():
     states = ("healthy", "valve_coil_warning", "relief_spring_warning", "valve_leak_warning", "pump_leak_warning")
-    train = _windows(states, filtered_noise(40, (0, 4), seed=7), seed=8)
+    train = windows_of(states, filtered_noise(40, (0, 4), seed=7), seed=8)
     holds = np.concatenate([np.full(2000, v) for v in (0.8, 1.4, 2.8, 3.3)])
-    test = _windows(states, holds, seed=9)  # windows 1, 3, 5, 7: pure 5 s holds after each step
+    test = windows_of(states, holds, seed=9)  # windows 1, 3, 5, 7: pure 5 s holds after each step
     banded = ConditionModel(features=ConditionFeatures(level_weight=0.0)).fit(train)
     levelled = ConditionModel().fit(train)
     acc = {name: np.mean(np.concatenate([m.predict(w[1::2]) == s for s, w in test.items()]))

@@ -1,12 +1,17 @@
 """Command-invariant health features from the component relations of the nominal plant (issue 5).
 
 Public API: :class:`ConditionFeatures` (raw windows → per-state parity scores), its helper
-:func:`windows_from_recording`, and :class:`ConditionModel` (features + decision + open-set rule).
+:func:`windows_from_recording`, :class:`ConditionModel` (features + decision + open-set rule),
+and the evidence pooled over a machine's recent windows (:class:`ConditionStream`,
+:class:`EvidenceSmoother`, :func:`trailing_evidence`).
 The relations themselves are in :mod:`hydrowatch.condition.parity`; docs/command-invariance.md
 has the measurements.
 """
 
+from hydrowatch.condition.evidence import EvidenceLayout, EvidenceSmoother, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures, windows_from_recording
 from hydrowatch.condition.model import ConditionModel, ParityRule
+from hydrowatch.condition.stream import ConditionStream
 
-__all__ = ["ConditionFeatures", "ConditionModel", "ParityRule", "windows_from_recording"]
+__all__ = ["ConditionFeatures", "ConditionModel", "ConditionStream", "EvidenceLayout", "EvidenceSmoother", "ParityRule",
+           "trailing_evidence", "windows_from_recording"]

@@ -18,6 +18,7 @@ import numpy as np
 
 from hydrowatch.condition import parity
 from hydrowatch.errors import DataError
+from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
 
@@ -28,6 +29,8 @@ CHANNELS: tuple[str, ...] = ("voltage", *SENSORS)
 TEMPERATURE = "temperature"
 """Optional 5th channel of a window: oil temperature, °C (40 °C assumed when absent)."""
 LPM_TO_M3S = 1.0 / parity.M3S_TO_LPM
+FILL_ITERATIONS = 3
+"""Fixed-point passes of the speed fill from flow (P̂L depends on ω through Eq. 7; converges in 2)."""
 
 
 @dataclass(frozen=True)
@@ -58,17 +61,33 @@ def check_windows(windows: np.ndarray, window: int) -> np.ndarray:
     return w
 
 
+def fill_faults(sensors: Sequence[str]) -> tuple[str, ...]:
+    """Faults whose parameter the filling of the missing sensors uses (:func:`window_signals`): TL, Ctm."""
+    have = set(sensors)
+    used = set()
+    if "torque" not in have or ("speed" not in have and "flow" not in have):
+        used.add("load")
+    if "flow" not in have or ("speed" not in have and "flow" in have):
+        used.add("motor_leak")
+    return tuple(f for f in ("load", "motor_leak") if f in used)
+
+
 def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParameters,
-                   viscosity_coefficient: float = 0.0) -> WindowSignals:
-    """SI signals of valid windows (m, n, 4 or 5), missing sensors filled from the nominal relations.
+                   viscosity_coefficient: float = 0.0, fill: PlantParameters | None = None) -> WindowSignals:
+    """SI signals of valid windows (m, n, 4 or 5), missing sensors filled from the relations of ``fill``.
 
     With a 5th (temperature) channel the leakage factor exp(k·(T̄ − 40 °C)), k =
     ``viscosity_coefficient`` [1/K], enters every relation (:mod:`hydrowatch.condition.parity`).
 
-    Filling rules (``p`` nominal): torque from the load relation (Eq. 7) given speed; speed from the
-    motor relation (Eq. 6) given flow, or from the load relation inverted given torque only; flow
-    from the motor relation given speed. The relations used to fill are not tested.
+    Filling rules (parameters ``fill``, default ``p``; only TL and Ctm enter, :func:`fill_faults`):
+    torque from the load relation (Eq. 7) given speed; speed from the motor relation (Eq. 6) given
+    flow, or integrated through the load relation given torque only
+    (:func:`~hydrowatch.condition.parity.speed_from_torque`); flow from the motor relation given
+    speed. The relations used to fill are not tested. Filling with a health state's own
+    parameters (per-state hypotheses, :func:`state_ratios`) keeps a load or motor fault visible
+    to the relations left: a nominal fill would hide it.
     """
+    q = p if fill is None else fill
     have = set(sensors)
     u = windows[:, :, 0]
     flow = windows[:, :, 1] * LPM_TO_M3S
@@ -78,19 +97,24 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
     leak = parity.leakage_factor(windows[:, :, 4] if windows.shape[2] > 4 else None, u.shape[0],
                                  viscosity_coefficient)
     if "speed" not in have:
-        if "flow" in have:
-            pl_guess = (torque if "torque" in have else np.full_like(u, p.TL)) / (p.N * p.eta * p.Dm)
-            speed = (flow - p.Ctm * leak * pl_guess) / (p.N * p.Dm)
+        if "flow" in have:  # the motor relation solved for ω, P̂L (Eq. 7) refined by fixed-point iteration
+            speed = flow / (p.N * p.Dm)
+            for _ in range(FILL_ITERATIONS):
+                pl = parity.load_pressure(speed, torque if "torque" in have else parity.load_torque(speed, q), p,
+                                          leak=leak)
+                moving = (flow - q.Ctm * leak * pl) / (p.N * p.Dm)
+                # The leak can take all the flow (a stalled motor) but cannot turn the motor backwards.
+                speed = np.where(flow >= 0.0, np.maximum(moving, 0.0), np.minimum(moving, 0.0))
             relations.discard("motor")
         else:
-            speed = np.maximum(torque - p.TL, 0.0) / max(p.BL, 1e-9)
+            speed = parity.speed_from_torque(torque, q)
             relations.discard("load")
     if "torque" not in have:
-        torque = (p.JL * parity.derivative(speed) + p.BL * speed + p.TL * np.tanh(speed / p.omega_s))
+        torque = parity.load_torque(speed, q)
         relations.discard("load")
     pl = parity.load_pressure(speed, torque, p, leak=leak)
     if "flow" not in have:
-        flow = p.N * p.Dm * speed + p.Ctm * leak * pl + p.Vt / (4.0 * p.beta_e) * parity.derivative(pl)
+        flow = p.N * p.Dm * speed + q.Ctm * leak * pl + p.Vt / (4.0 * p.beta_e) * parity.derivative(pl)
         relations.discard("motor")
     return WindowSignals(u, flow, speed, torque, pl, parity.spool_position(u, p),
                          tuple(r for r in RELATIONS if r in relations), leak)
@@ -108,8 +132,8 @@ class ParityEstimates:
     mse : dict of str to ndarray
         Minimum mean squared residual: ``load`` (N·m)², ``motor`` and each valve hypothesis (L/min)².
     curvature : dict of str to ndarray
-        For the linear relations (load, motor_leak): d(MSE)/d(severity²), so that
-        MSE(s) = mse + curvature·(s − ŝ)².
+        d(MSE)/d(severity²) of every fault, so that MSE(s) = mse + curvature·(s − ŝ)² (exact for
+        the linear relations load, motor_leak and valve_leak; Gauss-Newton's near the fit for the others).
     """
 
     severity: Mapping[str, np.ndarray]
@@ -117,8 +141,13 @@ class ParityEstimates:
     curvature: Mapping[str, np.ndarray]
 
 
-def parity_estimates(sig: WindowSignals, p: PlantParameters) -> ParityEstimates:
-    """Fit every relation once per window (:mod:`hydrowatch.condition.parity`)."""
+def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool = True) -> ParityEstimates:
+    """Fit every relation once per window (:mod:`hydrowatch.condition.parity`).
+
+    With ``valve_search`` False the valve-side faults are not searched but held at nominal (one
+    integration for all four): enough for windows filled with a load or motor state's own
+    parameters, whose box keeps every valve-side fault near nominal (:func:`state_ratios`).
+    """
     severity: dict[str, np.ndarray] = {}
     mse: dict[str, np.ndarray] = {}
     curvature: dict[str, np.ndarray] = {}
@@ -129,10 +158,14 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters) -> ParityEstimates:
                                                              leak=sig.leak)
     mse["motor"] = rms**2
     curvature["motor_leak"] = np.mean(phi**2, axis=1)
+    nominal = None if valve_search else parity.valve_mse(sig.flow, sig.spool, sig.load_pressure, p, None,
+                                                          np.zeros(sig.flow.shape[0]), sig.leak)
     for fault in parity.VALVE_HYPOTHESES:
-        severity[fault], rms = parity.valve_relation(sig.flow, sig.spool, sig.load_pressure, p, fault,
-                                                     leak=sig.leak)
-        mse[fault] = rms**2
+        if nominal is None:
+            severity[fault], mse[fault], curvature[fault] = parity.valve_fit(sig.flow, sig.spool, sig.load_pressure,
+                                                                             p, fault, leak=sig.leak)
+        else:
+            severity[fault], mse[fault], curvature[fault] = np.zeros(nominal.size), nominal, np.zeros(nominal.size)
     return ParityEstimates(severity, mse, curvature)
 
 
@@ -169,11 +202,105 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
             held = np.clip(s, *box[fault])
             mse = est.mse[fault].copy()
             moved = held != s
+            if fault in parity.LINEAR_HYPOTHESES:  # exact where the free fit is the unconstrained minimum
+                inside = moved & (s > parity.SEVERITY_LIMITS[fault][0]) & (s < parity.SEVERITY_LIMITS[fault][1])
+                mse[inside] += est.curvature[fault][inside] * (held[inside] - s[inside]) ** 2
+                moved &= ~inside
             if np.any(moved):
-                r = parity.valve_residual(sig.flow[moved], sig.spool[moved], sig.load_pressure[moved], p, fault,
-                                          held[moved], sig.leak[moved])
-                mse[moved] = np.mean(r**2, axis=1)
+                mse[moved] = parity.valve_mse(sig.flow[moved], sig.spool[moved], sig.load_pressure[moved], p, fault,
+                                              held[moved], sig.leak[moved])
             cache[key] = mse
         best = np.minimum(best, cache[key])
     out["valve"] = best
     return out
+
+
+def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | None]:
+    """Why each valid-shaped window (m, n, 4 or 5) cannot be judged, or None (``ConditionFeatures.window_reasons``)."""
+    used = [0] + [1 + SENSORS.index(s) for s in sensors] + ([4] if windows.shape[2] > 4 else [])
+    names = (*CHANNELS, TEMPERATURE)
+    bad = (~np.isfinite(windows[:, :, used])).sum(axis=1)  # (m, used)
+    stuck = np.ptp(np.nan_to_num(windows[:, :, used]), axis=1) == 0.0
+    reasons: list[str | None] = []
+    for i in range(windows.shape[0]):
+        why = None
+        for j, c in enumerate(used):
+            if bad[i, j]:
+                why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
+                break
+            if 0 < c < 4 and stuck[i, j]:
+                why = f"{names[c]}: constant over the window (stuck sensor?)"
+                break
+        reasons.append(why)
+    return reasons
+
+
+def state_box(state: str, level: float, p: PlantParameters, tolerance: float, level_width: float, narrow: bool,
+              band_margin: float) -> dict[str, tuple[float, float]]:
+    """A health state's severity box: every fault within ``tolerance`` (``level_width`` if narrow) × its warning
+    severity of nominal, the state's own fault in its level's band scaled to the fitted ``level`` (widened by
+    ``band_margin``) or, if narrow, within ``level_width`` of it."""
+    box = {}
+    for other in FAULTS:
+        tol = (level_width if narrow else tolerance) * level_severity(other, "warning", p)
+        box[other] = (-tol, tol)
+    own, named_level = parse_state(state)
+    if own is not None and named_level is not None:
+        if narrow:
+            box[own] = (level * (1.0 - level_width), level * (1.0 + level_width))
+        else:
+            named = level_severity(own, named_level, p)
+            lo, hi = (severity_for_speed_drop(own, d, p) / named for d in LEVEL_BANDS[named_level])
+            box[own] = (level * lo * (1.0 - band_margin), level * hi * (1.0 + band_margin))
+    return box
+
+
+@dataclass(frozen=True)
+class FillGroup:
+    """Health states whose missing sensors are filled with the same parameters, with that fill's windows."""
+
+    states: tuple[int, ...]
+    """Indices of the states (in the features' state order)."""
+    signals: WindowSignals
+    estimates: ParityEstimates
+
+
+def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Sequence[str],
+                 box_sets: Sequence[Sequence[Mapping[str, tuple[float, float]]]]
+                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    """F[r, k] = MSE_r(state k's box, k's fill) / MSE_r(free) per set of boxes, and the free MSEs.
+
+    Parameters
+    ----------
+    groups : sequence of FillGroup
+        Every state in exactly one group (one group when no sensor is missing).
+    box_sets : sequence of sequences of boxes
+        Per set (band, level), each state's box, in state order.
+
+    Returns
+    -------
+    (list of ndarray, dict of str to ndarray)
+        Per box set the ratios, shape (m, n_relations · n_states) relation-major; and the free
+        MSE of each relation, shape (m,): the best fit of every hypothesis and fill tried (a held
+        fit can beat a search stalled at a kink), so that no ratio falls below 1.
+    """
+    n_states = sum(len(g.states) for g in groups)
+    m = groups[0].signals.flow.shape[0]
+    held = [[{} for _ in range(n_states)] for _ in box_sets]  # type: list[list[dict[str, np.ndarray]]]
+    free = {r: np.full(m, np.inf) for r in RELATIONS}
+    for g in groups:
+        cache: dict[tuple[str, float, float], np.ndarray] = {}
+        for boxes, out in zip(box_sets, held):
+            for k in g.states:
+                out[k] = relation_mse(g.signals, g.estimates, p, boxes[k], cache)
+        est = g.estimates
+        free["load"] = np.minimum(free["load"], est.mse["load"])
+        free["motor"] = np.minimum(free["motor"], est.mse["motor"])
+        free["valve"] = np.minimum(free["valve"], np.min([est.mse[f] for f in parity.VALVE_HYPOTHESES]
+                                                         + list(cache.values()), axis=0))
+    ratios = []
+    for mse in held:
+        scores = np.stack([np.stack([mse[k][r] / np.maximum(free[r], 1e-300) for k in range(n_states)], axis=1)
+                           for r in relations], axis=1)
+        ratios.append(scores.reshape(m, -1))
+    return ratios, free

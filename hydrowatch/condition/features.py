@@ -39,10 +39,11 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import estimates as E
+from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, sliding_windows, window_starts
 from hydrowatch.log import event, get_logger
-from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
+from hydrowatch.plant.faults import FAULTS, fault_parameters, level_severity, parse_state
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS, Recording
 
@@ -50,6 +51,8 @@ _log = get_logger(__name__)
 KINDS = ("scores", "severities")
 BAND_MARGIN = 0.05
 """Relative widening of each severity band (the band edges are physics, the level is fitted)."""
+RELATION_OF: dict[str, str] = {"load": "load", "motor_leak": "motor", **{f: "valve" for f in E.parity.VALVE_HYPOTHESES}}
+"""The relation in which each fault's parameter appears."""
 
 
 def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
@@ -171,20 +174,22 @@ class ConditionFeatures:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.nominal_ = p
         self.states_ = tuple(windows_by_state)
+        filled = E.fill_faults(self.sensors)
+        # A fault whose parameter fills a missing sensor sits at its named level (its own relation is gone).
+        self.levels_ = {state: level_severity(f, lvl, p) for state in self.states_
+                        for f, lvl in [parse_state(state)] if f in filled and lvl is not None}
         fitted: dict[str, tuple[E.WindowSignals, E.ParityEstimates]] = {}
         for state, windows in windows_by_state.items():
-            parse_state(state)
             w = E.check_windows(windows, self.window)
             ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
             if ok.sum() < 2:
                 raise DataError(f"state '{state}' must have at least 2 valid windows. Got {int(ok.sum())}.")
-            sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient)
+            sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient, self._fill(state))
             fitted[state] = (sig, E.parity_estimates(sig, p))
         self.relations_ = fitted["healthy"][0].relations
-        self.levels_ = {}
         for state in self.states_:
             fault, _ = parse_state(state)
-            if fault is not None:
+            if fault is not None and state not in self.levels_:
                 self.levels_[state] = float(np.median(fitted[state][1].severity[fault]))
         self.boxes_ = {state: self._box(state, p) for state in self.states_}
         self.level_boxes_ = {state: self._box(state, p, narrow=True) for state in self.states_}
@@ -198,20 +203,8 @@ class ConditionFeatures:
 
     def _box(self, state: str, p: PlantParameters, narrow: bool = False) -> dict[str, tuple[float, float]]:
         """A state's band box, or with ``narrow`` its level box (module docstring)."""
-        box = {}
-        for other in FAULTS:
-            tol = (self.level_width if narrow else self.tolerance) * level_severity(other, "warning", p)
-            box[other] = (-tol, tol)
-        own, level = parse_state(state)
-        if own is not None and level is not None:
-            s = self.levels_[state]
-            if narrow:
-                box[own] = (s * (1.0 - self.level_width), s * (1.0 + self.level_width))
-            else:
-                named = level_severity(own, level, p)
-                lo, hi = (severity_for_speed_drop(own, d, p) / named for d in LEVEL_BANDS[level])
-                box[own] = (s * lo * (1.0 - BAND_MARGIN), s * hi * (1.0 + BAND_MARGIN))
-        return box
+        return E.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
+                           BAND_MARGIN)
 
     def _names(self) -> list[str]:
         if self.kind == "scores":
@@ -225,25 +218,51 @@ class ConditionFeatures:
             raise NotFittedError("ConditionFeatures must be fitted before use. Call fit(windows_by_state) first.")
 
     # -- transforming -----------------------------------------------------------------------------
-    def transform(self, windows: np.ndarray) -> np.ndarray:
-        """Features of raw windows (n_windows, window, 4) → (n_windows, n_features); NaN rows are invalid windows."""
+    def _fill(self, state: str) -> PlantParameters:
+        """Parameters that fill the missing sensors for ``state``: its own fault at its level if the fill uses it."""
+        fault, _ = parse_state(state)
+        if fault in E.fill_faults(self.sensors):
+            return fault_parameters(self.nominal_, fault, self.levels_[state])
+        return self.nominal_
+
+    def _estimates(self, windows: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]:
+        """Valid-window mask (n,) and the fill groups of the valid windows (nominal fill first; [] if none valid).
+
+        With every sensor present there is one group; otherwise one per distinct fill
+        (:func:`hydrowatch.condition.estimates.fill_faults`): at most 5, not one per state.
+        """
         self._check_fitted()
         w = E.check_windows(windows, self.window)
-        out = np.full((w.shape[0], len(self.feature_names_)), np.nan)
         ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
         if not ok.any():
+            return ok, []
+        members: dict[str, list[int]] = {"nominal": []}
+        for k, state in enumerate(self.states_):
+            fill = self._fill(state)
+            members.setdefault("nominal" if fill is self.nominal_ else state, []).append(k)
+        groups = []
+        for key, states in members.items():
+            fill = self.nominal_ if key == "nominal" else self._fill(key)
+            sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient, fill)
+            # Only load and motor states get their own fill; their boxes hold the valve at nominal.
+            groups.append(E.FillGroup(tuple(states), sig, E.parity_estimates(sig, self.nominal_, key == "nominal")))
+        return ok, groups
+
+    def transform(self, windows: np.ndarray) -> np.ndarray:
+        """Features of raw windows (n_windows, window, 4) → (n_windows, n_features); NaN rows are invalid windows."""
+        ok, groups = self._estimates(windows)
+        out = np.full((ok.size, len(self.feature_names_)), np.nan)
+        if not groups:
             return out
-        p = self.nominal_
-        sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient)
-        est = E.parity_estimates(sig, p)
         if self.kind == "severities":
+            est = groups[0].estimates
             fits = [r for r in ("load", "motor") if r in self.relations_] + list(E.parity.VALVE_HYPOTHESES)
             floor = {f: self.floors_["valve" if f in E.parity.VALVE_HYPOTHESES else f] for f in fits}
             columns = [est.severity[f] for f in FAULTS] + [np.log10(np.maximum(est.mse[f], 1e-300) / floor[f])
                                                             for f in fits]
             out[ok] = np.stack(columns, axis=1)
             return out
-        out[ok] = self._ratios(sig, est, (self.boxes_,))[0]
+        out[ok] = self._ratios(groups, (self.boxes_,))[0][0]
         return out
 
     def transform_with_levels(self, windows: np.ndarray) -> np.ndarray:
@@ -252,42 +271,63 @@ class ConditionFeatures:
         The first half holds the band-box ratios of :meth:`transform`; the second half the same
         ratios with each state's level box (module docstring). ``ParityRule`` decides on both.
         """
-        self._check_fitted()
-        w = E.check_windows(windows, self.window)
-        out = np.full((w.shape[0], 2 * len(self.feature_names_)), np.nan)
-        ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
-        if ok.any():
-            sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient)
-            out[ok] = np.concatenate(self._ratios(sig, E.parity_estimates(sig, self.nominal_),
-                                                  (self.boxes_, self.level_boxes_)), axis=1)
+        return self.transform_evidence(windows)[:, : 2 * len(self.feature_names_)]
+
+    def transform_evidence(self, windows: np.ndarray) -> np.ndarray:
+        """:meth:`transform_with_levels` plus what pooling windows with one severity needs, NaN rows invalid.
+
+        Shape (n_windows, 2 · n_features + 2 · n_states): the band and level ratios, then for every
+        state the free estimate of its own fault's severity (n_states), then that fault's curvature
+        d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy). See
+        :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout`.
+        """
+        ok, groups = self._estimates(windows)
+        k = len(self.states_)
+        out = np.full((ok.size, 2 * len(self.feature_names_) + 2 * k), np.nan)
+        if not groups:
+            return out
+        (band, level), free = self._ratios(groups, (self.boxes_, self.level_boxes_))
+        severity, weight = np.zeros((band.shape[0], k)), np.zeros((band.shape[0], k))
+        faults = self._own_faults()
+        for g in groups:
+            for j in g.states:
+                fault = faults[j]
+                if fault is not None:
+                    severity[:, j] = g.estimates.severity[fault]
+                    weight[:, j] = g.estimates.curvature[fault] / np.maximum(free[RELATION_OF[fault]], 1e-300)
+        out[ok] = np.concatenate([band, level, severity, weight], axis=1)
         return out
 
-    def _ratios(self, sig: E.WindowSignals, est: E.ParityEstimates,
-                boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]) -> list[np.ndarray]:
-        """F[r, k] = MSE_r(box of k)/MSE_r(free) for each set of boxes, each (m, n_relations · n_states)."""
-        cache: dict[tuple[str, float, float], np.ndarray] = {}
-        held = [[E.relation_mse(sig, est, self.nominal_, b[state], cache) for state in self.states_] for b in boxes]
-        # The free fit is the best of all fits tried (a held fit can beat a search stalled at a kink).
-        free = {"load": est.mse["load"], "motor": est.mse["motor"],
-                "valve": np.min([est.mse[f] for f in E.parity.VALVE_HYPOTHESES] + list(cache.values()), axis=0)}
-        out = []
-        for mse in held:
-            scores = np.stack([np.stack([mse[k][r] / np.maximum(free[r], 1e-300) for k in range(len(self.states_))],
-                                        axis=1) for r in self.relations_], axis=1)
-            out.append(scores.reshape(scores.shape[0], -1))
-        return out
+    def _own_faults(self) -> list[str | None]:
+        """Each state's own fault, None for healthy or where the sensors cannot test its relation."""
+        faults = [parse_state(state)[0] for state in self.states_]
+        return [f if f is not None and RELATION_OF[f] in self.relations_ else None for f in faults]
+
+    def evidence_layout(self) -> EvidenceLayout:
+        """Where :meth:`transform_evidence` puts each state's own fault, and its band and level boxes."""
+        self._check_fitted()
+        k = len(self.states_)
+        columns = np.full(k, -1, dtype=np.int64)
+        bounds = np.zeros((2, k, 2))
+        for j, (state, fault) in enumerate(zip(self.states_, self._own_faults())):
+            if fault is not None:
+                columns[j] = self.relations_.index(RELATION_OF[fault]) * k + j
+                bounds[0, j], bounds[1, j] = self.boxes_[state][fault], self.level_boxes_[state][fault]
+        return EvidenceLayout(columns, bounds)
+
+    def _ratios(self, groups: Sequence[E.FillGroup], boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]
+                ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+        """:func:`hydrowatch.condition.estimates.state_ratios` for each set of boxes (band, level)."""
+        return E.state_ratios(groups, self.nominal_, self.relations_,
+                              [[b[state] for state in self.states_] for b in boxes])
 
     def severities(self, windows: np.ndarray) -> dict[str, np.ndarray]:
         """Unconstrained severity estimates of every fault per window, ``{fault: (n_windows,)}`` (NaN where invalid)."""
-        self._check_fitted()
-        w = E.check_windows(windows, self.window)
-        ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
-        out = {f: np.full(w.shape[0], np.nan) for f in FAULTS}
-        if ok.any():
-            sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient)
-            est = E.parity_estimates(sig, self.nominal_)
+        ok, groups = self._estimates(windows)
+        out = {f: np.full(ok.size, np.nan) for f in FAULTS}
+        if groups:
             for f in FAULTS:
-                out[f][ok] = est.severity[f]
+                out[f][ok] = groups[0].estimates.severity[f]
         return out
 
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:
@@ -297,21 +337,7 @@ class ConditionFeatures:
         sensor), or a used sensor constant over the window (stuck). A constant command or
         temperature is fine (a hold, a warm machine).
         """
-        w = E.check_windows(windows, self.window)
-        used = [0] + [1 + SENSORS.index(s) for s in self.sensors] + ([4] if w.shape[2] > 4 else [])
-        reasons: list[str | None] = []
-        for row in w:
-            why = None
-            for c in used:
-                bad = int((~np.isfinite(row[:, c])).sum())
-                if bad:
-                    why = f"{(*E.CHANNELS, E.TEMPERATURE)[c]}: {bad} NaN/inf samples in the window"
-                    break
-                if 0 < c < 4 and np.ptp(row[:, c]) == 0.0:
-                    why = f"{E.CHANNELS[c]}: constant over the window (stuck sensor?)"
-                    break
-            reasons.append(why)
-        return reasons
+        return E.invalid_reasons(E.check_windows(windows, self.window), self.sensors)
 
     def window_starts(self, n_samples: int) -> np.ndarray:
         """First sample of each window of a record of ``n_samples`` samples."""

@@ -12,8 +12,14 @@ reference-model prediction errors. The decision is either
   the same features: it fits the training command perfectly but learns the pattern of the
   identification experiment's scores, which the bench shows does not carry to holds and ramps.
 
+Verdicts judge each window alone, or pool the evidence of a machine's last n windows
+(``smoothing``, :class:`~hydrowatch.condition.stream.ConditionStream`,
+:mod:`hydrowatch.condition.evidence`): look-alike valve faults in holds are then told apart and
+an unseen one is rejected, at the price of delay.
+
 ``save``/``load`` use one directory: ``condition_features.json``, ``decision.json`` or
-``classifier.npz``, ``open_set.json`` (no pickle).
+``classifier.npz``, ``open_set.json``, ``condition_model.json`` (format 3: ``pooled_excess``;
+directories of format 2, without it, load with the default) (no pickle).
 """
 
 from __future__ import annotations
@@ -25,14 +31,18 @@ from typing import Any, cast
 
 import numpy as np
 
+from hydrowatch.condition.evidence import trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures
-from hydrowatch.errors import DataError, NotFittedError
+from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.classifier import HealthClassifier, fit_temperature
 from hydrowatch.health.openset import OpenSetRule
 from hydrowatch.health.verdict import Verdict, judge
 
 FILES = {"features": "condition_features.json", "rule": "decision.json", "classifier": "classifier.npz",
-         "open_set": "open_set.json"}
+         "open_set": "open_set.json", "model": "condition_model.json"}
+FORMAT = 3
+"""Version of the saved directory: 3 adds ``condition_model.json`` (``pooled_excess``); 2 lacks it and loads
+with the default."""
 
 
 class ParityRule:
@@ -109,24 +119,43 @@ class ParityRule:
         return rule
 
 
-class _BandColumns:
-    """The open-set rule seen through the band-box half of ``transform_with_levels`` (for :func:`judge`)."""
+class _Columns:
+    """A decision or open-set rule seen through columns [lo, hi) of the feature rows (for :func:`judge`).
 
-    def __init__(self, rule: OpenSetRule) -> None:
-        self.rule = rule
+    :meth:`ConditionModel.judge_evidence` hands :func:`judge` one row per window holding the
+    decision's scores (band then level ratios) followed by the open-set rule's (band half used);
+    each part reads its own columns. With ``limit`` the open set also rejects rows whose best known
+    state leaves a summed excess min_k Σ_r (F[r, k] − 1) above it (pooled evidence).
+    """
 
-    @staticmethod
-    def _band(features: np.ndarray) -> np.ndarray:
-        f = np.atleast_2d(np.asarray(features, dtype=np.float64))
-        return f[:, : f.shape[1] // 2]
+    def __init__(self, part: Any, lo: int, hi: int, limit: float | None = None) -> None:
+        self.part, self.lo, self.hi, self.limit = part, lo, hi, limit
+
+    @property
+    def classes_(self) -> np.ndarray:
+        """The decision's states."""
+        return cast(np.ndarray, self.part.classes_)
+
+    def _cut(self, features: np.ndarray) -> np.ndarray:
+        return np.atleast_2d(np.asarray(features, dtype=np.float64))[:, self.lo:self.hi]
+
+    def _excess(self, features: np.ndarray) -> np.ndarray:
+        f = self._cut(features)
+        return cast(np.ndarray, (f - 1.0).reshape(f.shape[0], -1, len(self.part.states_)).sum(axis=1).min(axis=1))
+
+    def predict_proba(self, features: np.ndarray) -> np.ndarray:
+        """The decision's probabilities, shape (n, n_states)."""
+        return cast(np.ndarray, self.part.predict_proba(self._cut(features)))
 
     def score(self, features: np.ndarray) -> np.ndarray:
-        """Open-set score of the band-box ratios, shape (n,)."""
-        return self.rule.score(self._band(features))
+        """Open-set score, shape (n,): above 1 means unknown."""
+        s = cast(np.ndarray, self.part.score(self._cut(features)))
+        return s if self.limit is None else np.maximum(s, self._excess(features) / self.limit)
 
     def is_unknown(self, features: np.ndarray, probabilities: np.ndarray | None = None) -> np.ndarray:
-        """Rejection on the band-box ratios, shape (n,)."""
-        return self.rule.is_unknown(self._band(features), probabilities)
+        """Open-set rejection, shape (n,)."""
+        unknown = cast(np.ndarray, self.part.is_unknown(self._cut(features), probabilities))
+        return unknown if self.limit is None else unknown | (np.nan_to_num(self._excess(features)) > self.limit)
 
 
 class ConditionModel:
@@ -140,6 +169,12 @@ class ConditionModel:
         Unfitted template; None (default) decides with :class:`ParityRule`.
     open_set : OpenSetRule, optional
         Unfitted template; default ``OpenSetRule(quantile=0.995, margin=3.0)``.
+    pooled_excess : float, default 1.0
+        Open-set limit for evidence pooled over a machine's windows (``smoothing`` > 1,
+        :class:`~hydrowatch.condition.stream.ConditionStream`): unknown when the best known state
+        leaves min_k Σ_r (F̄[r, k] − 1) above it, i.e. on average over the pooled windows twice the
+        free fit's residual power on one relation. Known states stay below 0.3 pooled over 12
+        windows of a duty cycle (below 0.6 in single windows, where the per-window rule applies).
 
     Attributes
     ----------
@@ -148,13 +183,17 @@ class ConditionModel:
     """
 
     def __init__(self, *, features: ConditionFeatures | None = None, classifier: HealthClassifier | None = None,
-                 open_set: OpenSetRule | None = None) -> None:
+                 open_set: OpenSetRule | None = None, pooled_excess: float = 1.0) -> None:
         self.features = features
         self.classifier = classifier
         self.open_set = open_set
+        self.pooled_excess = pooled_excess
 
     def fit(self, windows_by_state: Mapping[str, np.ndarray]) -> ConditionModel:
         """Fit all parts on raw windows per state, shape (n_k, window, 4); returns self."""
+        if not self.pooled_excess > 0.0:
+            raise ParameterError(f"pooled_excess must be > 0. Got {self.pooled_excess!r}; 1.0 is the default.")
+        self.pooled_excess_ = float(self.pooled_excess)
         template = self.features or ConditionFeatures()
         self.features_ = ConditionFeatures(**{**template.get_params(), "kind": "scores"}).fit(windows_by_state)
         states = list(self.features_.states_)
@@ -169,25 +208,82 @@ class ConditionModel:
         else:
             self.decision_ = HealthClassifier(**self.classifier.get_params()).fit(X, y, classes=states)
         template_rule = self.open_set or OpenSetRule(quantile=0.995, margin=3.0)
-        self.open_set_ = OpenSetRule(**template_rule.get_params()).fit(_BandColumns._band(X), y, states)
+        self.open_set_ = OpenSetRule(**template_rule.get_params()).fit(X[:, : X.shape[1] // 2], y, states)
         return self
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "open_set_"):
             raise NotFittedError("ConditionModel must be fitted before use. Call fit(...) or ConditionModel.load(dir).")
 
-    def predict(self, windows: np.ndarray) -> np.ndarray:
-        """State per raw window, shape (n,): a trained state, ``unknown`` or ``invalid``."""
-        return np.asarray([v.state for v in self.judge(windows)])
+    def predict(self, windows: np.ndarray, smoothing: int = 1) -> np.ndarray:
+        """State per raw window, shape (n,): a trained state, ``unknown`` or ``invalid`` (see :meth:`judge`)."""
+        return np.asarray([v.state for v in self.judge(windows, smoothing)])
 
-    def judge(self, windows: np.ndarray) -> list[Verdict]:
-        """Verdicts of raw windows, shape (n_windows, window, 4)."""
+    def judge(self, windows: np.ndarray, smoothing: int = 1) -> list[Verdict]:
+        """Verdicts of raw windows, shape (n_windows, window, 4 or 5).
+
+        Parameters
+        ----------
+        smoothing : int, default 1
+            Valid windows whose evidence each verdict pools (:mod:`hydrowatch.condition.evidence`):
+            1 judges every window alone; n > 1 takes ``windows`` as consecutive windows of one
+            machine and judges each on itself and the n − 1 valid windows before it, the
+            windows sharing one severity of each state's fault.
+        """
+        return self.judge_with_scores(windows, smoothing)[0]
+
+    def judge_with_scores(self, windows: np.ndarray, smoothing: int = 1) -> tuple[list[Verdict], np.ndarray]:
+        """:meth:`judge` and each window's band-box scores (``features_.transform``, (n, n_features)) in one pass."""
         self._check_fitted()
-        features = self.features_.transform_with_levels(windows)
+        rows = self.features_.transform_evidence(windows)
         reasons = self.features_.window_reasons(windows)
-        return judge(features, cast(Any, self.decision_), cast(Any, _BandColumns(self.open_set_)), reasons)
+        ratios = rows[:, : 2 * len(self.features_.feature_names_)]
+        band = ratios[:, : len(self.features_.feature_names_)]
+        if smoothing == 1:
+            return self.judge_evidence(ratios, ratios, reasons), band
+        layout = self.features_.evidence_layout()
+        return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons), band
 
-    def score(self, rec_windows: np.ndarray, n_samples: int | None = None) -> tuple[np.ndarray, list[Verdict]]:
+    def pools_open_set(self) -> bool:
+        """Whether pooled windows also pool the open-set evidence: only when the sensors test every relation.
+
+        With a sensor missing, the fills leave known states an occasional unexplained window (a
+        step the fill's static relation misses); pooled arithmetically it would spread over the
+        next windows, so the open-set rule then judges each window alone and pooling only serves
+        the decision.
+        """
+        self._check_fitted()
+        return set(self.features_.relations_) == {"load", "motor", "valve"}
+
+    def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
+                     reasons: Sequence[str | None] | None = None) -> list[Verdict]:
+        """Verdicts from pooled scores (:func:`~hydrowatch.condition.evidence.trailing_evidence`) and each
+        window's own ratios ``current``, all shape (n, n_features); see :meth:`pools_open_set`."""
+        if self.pools_open_set():
+            return self.judge_evidence(decision, open_set, reasons, pooled=True)
+        return self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons)
+
+    def judge_evidence(self, decision: np.ndarray, open_set: np.ndarray, reasons: Sequence[str | None] | None = None,
+                       pooled: bool = False) -> list[Verdict]:
+        """Verdicts from (pooled) parity scores, each shape (n, n_features) of ``transform_with_levels``.
+
+        ``decision`` feeds the state decision, ``open_set`` (its band half) the open-set rule; for
+        one window both are its own scores, for pooled windows the geometric and arithmetic means
+        (:mod:`hydrowatch.condition.evidence`), with which ``pooled`` adds the ``pooled_excess``
+        limit to the open-set rule. NaN rows or a reason make a verdict ``invalid``.
+        """
+        self._check_fitted()
+        d = np.atleast_2d(np.asarray(decision, dtype=np.float64))
+        o = np.atleast_2d(np.asarray(open_set, dtype=np.float64))
+        if d.shape != o.shape:
+            raise DataError(f"decision and open_set scores must have the same shape. Got {d.shape} and {o.shape}.")
+        width = d.shape[1]
+        return judge(np.concatenate([d, o], axis=1), cast(Any, _Columns(self.decision_, 0, width)),
+                     cast(Any, _Columns(self.open_set_, width, width + width // 2,
+                                        self.pooled_excess_ if pooled else None)), reasons)
+
+    def score(self, rec_windows: np.ndarray, n_samples: int | None = None,
+              smoothing: int = 1) -> tuple[np.ndarray, list[Verdict]]:
         """Window starts (sample index) and verdicts, like :meth:`HealthModel.score`.
 
         Parameters
@@ -196,11 +292,13 @@ class ConditionModel:
             From :func:`~hydrowatch.condition.features.windows_from_recording`.
         n_samples : int, optional
             Length of the recording; default ``window + (n_windows − 1)·hop``.
+        smoothing : int, default 1
+            See :meth:`judge` (a recording is one machine).
         """
         self._check_fitted()
         w = np.asarray(rec_windows)
         n = n_samples if n_samples is not None else self.features_.window + (w.shape[0] - 1) * self.features_.hop
-        return self.features_.window_starts(n), self.judge(w)
+        return self.features_.window_starts(n), self.judge(w, smoothing)
 
     def save(self, directory: str | Path) -> None:
         """Write the parts into ``directory`` (created if missing)."""
@@ -213,6 +311,7 @@ class ConditionModel:
         else:
             self.decision_.save(d / FILES["classifier"])
         (d / FILES["open_set"]).write_text(json.dumps(self.open_set_.to_dict(), indent=1))
+        (d / FILES["model"]).write_text(json.dumps({"format": FORMAT, "pooled_excess": self.pooled_excess_}))
 
     @classmethod
     def load(cls, directory: str | Path) -> ConditionModel:
@@ -231,6 +330,12 @@ class ConditionModel:
             else:
                 model.decision_ = HealthClassifier.load(d / FILES["classifier"])
             model.open_set_ = OpenSetRule.from_dict(json.loads((d / FILES["open_set"]).read_text()))
+            meta = json.loads((d / FILES["model"]).read_text()) if (d / FILES["model"]).is_file() else {}
         except json.JSONDecodeError as exc:
             raise DataError(f"condition model files must be valid JSON. Got: {exc}.", str(d)) from None
+        if int(meta.get("format", 2)) > FORMAT:
+            raise DataError(f"condition model format must be <= {FORMAT}. Got {meta['format']}: saved by a newer "
+                            "hydrowatch; upgrade hydrowatch to load it.", str(d))
+        model.pooled_excess = model.pooled_excess_ = float(meta.get("pooled_excess", 1.0))
         return model
+

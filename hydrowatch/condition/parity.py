@@ -19,9 +19,10 @@ pressure in Pa, speed in rad/s, torque in N·m); estimates are ``(n_windows,)``.
   back would amplify its noise and bias. Each valve-side fault moves this relation differently
   with the operating point: ``pump_leak`` (Cpl) sags Ps with flow demand, ``relief_spring`` (Pc)
   lowers it at every level, ``valve_coil`` (Kc) scales the flow uniformly, ``valve_leak`` (Cvx)
-  removes a flow ∝ P̂L. One severity per hypothesis is fitted (grids, then Gauss-Newton) on the
-  residual averaged over 40 ms blocks, and the fit's RMS residual says how well that hypothesis
-  alone explains the window.
+  removes a flow ∝ P̂L. One severity per hypothesis is fitted (grids, then Gauss-Newton;
+  ``valve_leak``, linear, by exact least squares) on the residual averaged over 40 ms blocks, and
+  the fit's RMS residual says how well that hypothesis alone explains the window. The loops are
+  compiled kernels (:mod:`hydrowatch.condition.supply`).
 
 Cref = Dp·ωp/Pc as in :mod:`hydrowatch.plant.faults`.
 
@@ -37,11 +38,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from hydrowatch.condition import supply
+from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import REFERENCE_TEMPERATURE_C
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
-M3S_TO_LPM = 60000.0
+M3S_TO_LPM = supply.M3S_TO_LPM
 """m³/s → L/min."""
 VALVE_HYPOTHESES: tuple[str, ...] = ("pump_leak", "relief_spring", "valve_coil", "valve_leak")
 """Valve/supply-side faults, each fitted as a one-parameter hypothesis of the valve relation."""
@@ -49,6 +52,8 @@ SEVERITY_LIMITS: dict[str, tuple[float, float]] = {
     "pump_leak": (-0.05, 3.0), "relief_spring": (-0.5, 0.95), "valve_coil": (-0.5, 0.95), "valve_leak": (-0.2, 3.0),
 }
 """Range searched for each valve-side severity (negative: better than nominal; a pump leak above -Cp/Cref)."""
+LINEAR_HYPOTHESES: tuple[str, ...] = ("valve_leak",)
+"""Valve-side hypotheses whose residual is linear in the severity (fitted exactly, held fits in closed form)."""
 
 
 def reference_conductance(p: PlantParameters) -> float:
@@ -108,6 +113,44 @@ def load_pressure(speed: np.ndarray, torque: np.ndarray, p: PlantParameters,
     """
     return (p.Jm * p.N * derivative(speed, sample_rate) + p.Bm / leak * p.N * speed
             + torque / (p.N * p.eta)) / p.Dm
+
+
+def load_torque(speed: np.ndarray, p: PlantParameters, sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
+    """Torque the load relation asks of a gearbox speed, N·m: JL·ω̇ + BL·ω + TL·tanh(ω/ωs) (Eq. 7)."""
+    return p.JL * derivative(speed, sample_rate) + p.BL * speed + p.TL * np.tanh(speed / p.omega_s)
+
+
+def speed_from_torque(torque: np.ndarray, p: PlantParameters, sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
+    """Gearbox speed that the load relation (Eq. 7) turns a measured torque into, rad/s, shape like ``torque``.
+
+    JL·ω̇ = T − BL·ω − TL·tanh(ω/ωs) integrated through each window (the torque averaged over each
+    sample interval, semi-implicit in the damping: stable, the load's time constant JL/BL = 0.25 s
+    ≫ one sample), from the speed at which the first sample's torque is in balance. The
+    integration low-passes the torque noise.
+    """
+    t = np.atleast_2d(np.asarray(torque, dtype=np.float64))
+    out = np.empty(t.shape)
+    _integrate_load(np.ascontiguousarray(t), p.JL, p.BL, p.TL, p.omega_s, 1.0 / sample_rate, out)
+    return out.reshape(np.shape(torque))
+
+
+@njit(cache=True)
+def _integrate_load(torque: np.ndarray, jl: float, bl: float, tl: float, ws: float, dt: float,
+                    out: np.ndarray) -> None:
+    m, n = torque.shape
+    for i in range(m):
+        lo, hi = -1e4, 1e4  # balance T = BL·ω + TL·tanh(ω/ωs) rises with ω: bisection
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            if bl * mid + tl * np.tanh(mid / ws) < torque[i, 0]:
+                lo = mid
+            else:
+                hi = mid
+        w = 0.5 * (lo + hi)
+        out[i, 0] = w
+        for k in range(1, n):
+            w = (w + dt / jl * (0.5 * (torque[i, k - 1] + torque[i, k]) - tl * np.tanh(w / ws))) / (1.0 + dt * bl / jl)
+            out[i, k] = w
 
 
 BLOCK = 8
@@ -196,53 +239,10 @@ def supply_and_valve_flow(spool_gain: np.ndarray, pl: np.ndarray, p: PlantParame
     """
     ps = np.empty(spool_gain.shape)
     ql = np.empty(spool_gain.shape)
-    _track_supply(np.ascontiguousarray(spool_gain, dtype=np.float64), np.ascontiguousarray(pl, dtype=np.float64),
-                  np.ascontiguousarray(leakage, dtype=np.float64), np.ascontiguousarray(pc, dtype=np.float64),
-                  p.Dp * p.omega_p, p.Kr, p.beta_e / p.Vs, 1.0 / sample_rate, ps, ql)
+    supply.track_supply(np.ascontiguousarray(spool_gain, dtype=np.float64), np.ascontiguousarray(pl, dtype=np.float64),
+                        np.ascontiguousarray(leakage, dtype=np.float64), np.ascontiguousarray(pc, dtype=np.float64),
+                        p.Dp * p.omega_p, p.Kr, p.beta_e / p.Vs, 1.0 / sample_rate, ps, ql)
     return ps, ql
-
-
-@njit(cache=True)
-def _valve_flow(g: float, pl: float, ps: float) -> tuple[float, float]:
-    """QL = g·√(Ps ∓ PL) and d|QL|/dPs."""
-    drop = ps - pl if g >= 0.0 else ps + pl
-    if drop <= 0.0:
-        return 0.0, 0.0
-    root = np.sqrt(drop)
-    return g * root, abs(g) / (2.0 * max(root, 30.0))  # slope capped below ~10 mbar of drop
-
-
-@njit(cache=True)
-def _track_supply(gain: np.ndarray, pl: np.ndarray, leakage: np.ndarray, pc: np.ndarray, q_geo: float, kr: float,
-                  stiffness: float, dt: float, ps_out: np.ndarray, ql_out: np.ndarray) -> None:
-    m, n = gain.shape
-    for i in range(m):
-        c = leakage[i]
-        lo, hi = 0.0, q_geo / c  # equilibrium of the first sample by bisection (the balance falls with Ps)
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            if q_geo - c * mid - kr * max(0.0, mid - pc[i]) - abs(_valve_flow(gain[i, 0], pl[i, 0], mid)[0]) > 0.0:
-                lo = mid
-            else:
-                hi = mid
-        ps = 0.5 * (lo + hi)
-        ps_out[i, 0] = ps
-        ql_out[i, 0] = _valve_flow(gain[i, 0], pl[i, 0], ps)[0]
-        for k in range(1, n):
-            q, slope = _valve_flow(0.5 * (gain[i, k - 1] + gain[i, k]), 0.5 * (pl[i, k - 1] + pl[i, k]), ps)
-            q_net = q_geo - abs(q) + slope * ps  # pump flow less the linearised valve demand
-            c_eff = c + slope
-            if ps > pc[i]:
-                target = (q_net + kr * pc[i]) / (kr + c_eff)
-                ps = target + (ps - target) * np.exp(-stiffness * (c_eff + kr) * dt)
-            else:
-                target = q_net / c_eff
-                ps = target + (ps - target) * np.exp(-stiffness * c_eff * dt)
-                if ps > pc[i]:  # crossed the cracking pressure within the step: the relief holds it
-                    ps = max((q_net + kr * pc[i]) / (kr + c_eff), pc[i])
-            ps = max(ps, 0.0)
-            ps_out[i, k] = ps
-            ql_out[i, k] = _valve_flow(gain[i, k], pl[i, k], ps)[0]
 
 
 def valve_flow_prediction(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
@@ -285,41 +285,49 @@ def valve_residual(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: Plant
     return block_means((flow - valve_flow_prediction(spool, pl, p, fault, severity, leak)) * M3S_TO_LPM)
 
 
+def _kernel_inputs(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters,
+                   leak: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Contiguous float64 inputs of :mod:`hydrowatch.condition.supply`: g = Kq·x̂, P̂L, Q, leakage factor (m,)."""
+    m = flow.shape[0]
+    f = np.ascontiguousarray(np.broadcast_to(np.asarray(leak, dtype=np.float64).reshape(-1), (m,)))
+    return (np.ascontiguousarray(p.Kq * spool, dtype=np.float64), np.ascontiguousarray(pl, dtype=np.float64),
+            np.ascontiguousarray(flow, dtype=np.float64), f)
+
+
+def valve_mse(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
+              severity: np.ndarray, leak: float | np.ndarray = 1.0, sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
+    """Mean squared :func:`valve_residual`, (L/min)², shape (m,), computed without storing the signals."""
+    g, pl_c, q, f = _kernel_inputs(flow, spool, pl, p, leak)
+    s = np.ascontiguousarray(np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (flow.shape[0],)))
+    return supply.residual_mse(supply.HYPOTHESIS_CODES[fault], s, g, pl_c, q, f, supply.constants(p, sample_rate),
+                               BLOCK)
+
+
 def valve_relation(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str,
-                   grid: int = 7, iterations: int = 4,
-                   leak: float | np.ndarray = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                   grid: int = 7, iterations: int = 4, leak: float | np.ndarray = 1.0,
+                   sample_rate: float = SAMPLE_RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
     """Severity of one valve-side fault hypothesis and its RMS residual, L/min (Eqs. 1, 2, 4, 5).
 
-    The severity minimising the block-averaged flow residual is found per window by a coarse grid
-    over :data:`SEVERITY_LIMITS`, a local grid around its best point, then damped Gauss-Newton
-    steps (numerical derivative).
+    :func:`valve_fit` also returns the fit's curvature.
+
+    The severity minimising the block-averaged flow residual over :data:`SEVERITY_LIMITS` is found
+    per window by :func:`hydrowatch.condition.supply.fit_windows`: a coarse grid, a local grid
+    around its best point, then damped Gauss-Newton steps; ``valve_leak`` (linear in its
+    severity) by exact least squares.
     """
+    s, mse, _ = valve_fit(flow, spool, pl, p, fault, grid, iterations, leak, sample_rate)
+    return s, np.sqrt(mse)
+
+
+def valve_fit(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str,
+              grid: int = 7, iterations: int = 4, leak: float | np.ndarray = 1.0,
+              sample_rate: float = SAMPLE_RATE_HZ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`valve_relation`'s severity, mean squared residual, (L/min)², and curvature d(MSE)/d(s²), each (m,)."""
+    if grid < 3 or iterations < 0:
+        raise ParameterError(f"grid must be >= 3 and iterations >= 0. Got {grid}, {iterations}; defaults 7, 4.")
     lo, hi = SEVERITY_LIMITS[fault]
-    m = flow.shape[0]
-
-    def sse(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r = valve_residual(flow, spool, pl, p, fault, s, leak)
-        return r, np.einsum("ij,ij->i", r, r)
-
-    candidates = np.linspace(lo, hi, grid)
-    costs = np.stack([sse(np.full(m, c))[1] for c in candidates], axis=1)
-    s = candidates[np.argmin(costs, axis=1)]
-    span = (hi - lo) / (grid - 1)
-    # A second, local grid: the cost has kinks where the relief valve opens or closes, at which a
-    # derivative step from the coarse grid alone can stall.
-    local = s[:, None] + np.linspace(-span, span, grid)[None, 1:-1]
-    local = np.clip(local, lo, hi)
-    local_costs = np.stack([sse(local[:, j])[1] for j in range(local.shape[1])], axis=1)
-    better_local = local_costs.min(axis=1) < costs.min(axis=1)
-    s = np.where(better_local, local[np.arange(m), np.argmin(local_costs, axis=1)], s)
-    span /= grid - 1
-    delta = 1e-4 * (hi - lo)
-    for _ in range(iterations):
-        r, cost = sse(s)
-        jac = (sse(s + delta)[0] - r) / delta
-        step = -np.einsum("ij,ij->i", jac, r) / np.maximum(np.einsum("ij,ij->i", jac, jac), 1e-300)
-        trial = np.clip(s + np.clip(step, -span, span), lo, hi)
-        better = sse(trial)[1] < cost
-        s = np.where(better, trial, s)
-    r, cost = sse(s)
-    return s, np.sqrt(cost / r.shape[1])
+    g, pl_c, q, f = _kernel_inputs(flow, spool, pl, p, leak)
+    s, mse, curvature = (np.empty(flow.shape[0]) for _ in range(3))
+    supply.fit_windows(supply.HYPOTHESIS_CODES[fault], lo, hi, grid, iterations, g, pl_c, q, f,
+                       supply.constants(p, sample_rate), BLOCK, s, mse, curvature)
+    return s, mse, curvature

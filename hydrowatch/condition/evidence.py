@@ -1,0 +1,160 @@
+"""Evidence carried across a machine's consecutive windows: the parity scores of the last n windows, pooled.
+
+One window cannot tell look-alike valve faults apart in a hold near 2 V (their severity levels
+are defined by the same speed drop there), and an unseen valve-side fault can look like a known
+one in a hold. Over a machine's recent windows the command visits other levels, where they do
+differ. The pooled evidence of the last ``n_windows`` valid windows of one machine is
+
+- for the decision, the mean of log F[r, k] (the geometric mean of the ratios): the
+  log-likelihood ratios of independent windows add, so the state that explains *all* of them
+  best wins (a generalised likelihood ratio over the windows, cf. study Eq. 5.3's sum over samples);
+- for the open-set rule, the arithmetic mean of F[r, k]: a known state must explain every
+  window, and one window that no known state explains (F ≫ 1 for all) is enough to reject;
+- in both, one machine has one severity: with ŝ_i window i's free estimate of state k's own
+  fault and w_i its curvature d(MSE)/d(s²) over the relation's free MSE, the windows share
+  s̄ = clip(Σ w_i·ŝ_i / Σ w_i, k's box) (the minimiser of the quadratic misfit model
+  Σ w_i·(s − ŝ_i)² over the box), and window i's ratio on that relation gains
+  w_i·((s̄ − ŝ_i)² − (clip(ŝ_i, box) − ŝ_i)²) ≥ 0 over holding it in the box alone. A look-alike
+  fault is explained by k in each window alone, but with a severity that moves with the
+  operating point; k's own fault keeps one severity up to noise (≈ 1/124 per window).
+
+The price is delay: after a change of state the verdict follows when the new state's windows
+outweigh the old ones (about n/2 windows). Invalid windows (NaN rows) are skipped, so a gap does
+not flush the history. :class:`EvidenceSmoother` is the streaming form (river style, one machine);
+:func:`trailing_evidence` the batch form for the windows of one recording.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydrowatch.errors import DataError, ParameterError
+
+
+def _check_n(n_windows: int) -> int:
+    if int(n_windows) != n_windows or n_windows < 1:
+        raise ParameterError(f"n_windows must be an integer >= 1. Got {n_windows!r}; 1 means no smoothing.")
+    return int(n_windows)
+
+
+@dataclass(frozen=True)
+class EvidenceLayout:
+    """Where each state's own fault sits in ``ConditionFeatures.transform_evidence`` rows.
+
+    Attributes
+    ----------
+    columns : ndarray of int, shape (n_states,)
+        Column of the state's own-fault relation in the band half of the ratios (−1: healthy, or
+        a relation the sensors cannot test); the level half is the same plus its width.
+    bounds : ndarray, shape (2, n_states, 2)
+        (low, high) severity of the state's own fault in its band box [0] and level box [1].
+    """
+
+    columns: np.ndarray
+    bounds: np.ndarray
+
+    def check(self, width: int) -> int:
+        """Number of ratio columns in rows of ``width`` values; raises if the rows do not fit."""
+        k = self.columns.size
+        d = width - 2 * k
+        if self.bounds.shape != (2, k, 2) or d <= 0 or d % 2 or np.any(self.columns >= d // 2):
+            raise DataError(f"features must be transform_evidence rows (2 · n_features + 2 · {k} values) for this "
+                            f"layout. Got {width} values; pass layout=None for plain ratios.")
+        return d
+
+
+def _pool(rows: np.ndarray, layout: EvidenceLayout | None) -> tuple[np.ndarray, np.ndarray]:
+    """(geometric mean, arithmetic mean) over axis 0 of the ratios (clipped at 1), with the common-severity term."""
+    if layout is None:
+        ratios = np.maximum(rows, 1.0)
+    else:
+        d = layout.check(rows.shape[1])
+        k = layout.columns.size
+        ratios = np.maximum(rows[:, :d], 1.0)
+        free = rows[:, d:d + k]
+        weight = rows[:, d + k:]
+        centre = np.sum(weight * free, axis=0) / np.maximum(weight.sum(axis=0), 1e-300)
+        own = layout.columns >= 0
+        for half in (0, 1):
+            lo, hi = layout.bounds[half, :, 0], layout.bounds[half, :, 1]
+            common = np.clip(centre, lo, hi)  # the minimiser of Σ w·(s − ŝ)² over the box
+            alone = np.clip(free, lo, hi)
+            extra = weight * ((common - free) ** 2 - (alone - free) ** 2)
+            ratios[:, half * (d // 2) + layout.columns[own]] += extra[:, own]
+    return np.exp(np.mean(np.log(ratios), axis=0)), np.mean(ratios, axis=0)
+
+
+def trailing_evidence(features: np.ndarray, n_windows: int,
+                      layout: EvidenceLayout | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled scores of each window with the valid windows before it (one machine, windows in time order).
+
+    Parameters
+    ----------
+    features : ndarray, shape (n, n_features)
+        Parity ratios F ≥ 1 per window (``ConditionFeatures.transform_with_levels``); NaN rows are
+        invalid windows.
+    n_windows : int
+        Valid windows pooled, the current one included (1: the window alone).
+    layout : EvidenceLayout, optional
+        ``ConditionFeatures.evidence_layout()`` when ``features`` are ``transform_evidence`` rows:
+        the pooled windows then share one severity of each state's own fault (module docstring).
+
+    Returns
+    -------
+    (ndarray, ndarray), each shape (n, n_ratios)
+        Geometric and arithmetic mean of the ratios over the trailing ``n_windows`` valid windows;
+        invalid rows stay NaN.
+    """
+    n = _check_n(n_windows)
+    f = np.asarray(features, dtype=np.float64)
+    if f.ndim != 2:
+        raise DataError(f"features must have shape (n_windows, n_features). Got {f.shape}.")
+    width = f.shape[1] if layout is None else layout.check(f.shape[1])
+    geometric = np.full((f.shape[0], width), np.nan)
+    arithmetic = np.full((f.shape[0], width), np.nan)
+    valid = np.flatnonzero(np.all(np.isfinite(f), axis=1))
+    for pos, i in enumerate(valid):
+        geometric[i], arithmetic[i] = _pool(f[valid[max(0, pos - n + 1):pos + 1]], layout)
+    return geometric, arithmetic
+
+
+class EvidenceSmoother:
+    """The pooled parity scores of one machine's last ``n_windows`` valid windows (river style).
+
+    Parameters
+    ----------
+    n_windows : int, default 6
+        Valid windows pooled (1: no smoothing). 6 windows (30 s of 5 s windows) span several
+        levels of a typical duty cycle.
+    layout : EvidenceLayout, optional
+        As in :func:`trailing_evidence`.
+    """
+
+    def __init__(self, *, n_windows: int = 6, layout: EvidenceLayout | None = None) -> None:
+        self.n_windows = _check_n(n_windows)
+        self.layout = layout
+        self._history: deque[np.ndarray] = deque(maxlen=self.n_windows)
+
+    def update(self, features: np.ndarray) -> None:
+        """Add one window's ratios, shape (n_features,); an invalid (non-finite) row is skipped. Returns nothing."""
+        row = np.asarray(features, dtype=np.float64).reshape(-1)
+        if self._history and row.shape != self._history[0].shape:
+            raise DataError(f"features must have {self._history[0].size} values per window. Got {row.size}.")
+        if np.all(np.isfinite(row)):
+            self._history.append(row)
+
+    def get(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(geometric mean, arithmetic mean) of the pooled windows, each (n_features,), or None before any."""
+        if not self._history:
+            return None
+        return _pool(np.stack(self._history), self.layout)
+
+    def latest(self) -> np.ndarray | None:
+        """The last valid window's row as given to :meth:`update`, or None before any."""
+        return self._history[-1] if self._history else None
+
+    def __len__(self) -> int:
+        return len(self._history)

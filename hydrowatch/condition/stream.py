@@ -1,0 +1,56 @@
+"""One machine's verdicts from the evidence of its recent windows (river style): :class:`ConditionStream`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydrowatch.condition.evidence import EvidenceSmoother
+from hydrowatch.condition.model import ConditionModel
+from hydrowatch.errors import NotFittedError
+from hydrowatch.health.verdict import Verdict
+
+
+class ConditionStream:
+    """Verdicts of one machine whose evidence is pooled over its last ``n_windows`` valid windows.
+
+    ``update`` takes each new raw window (or, for a scorer that batches many machines through
+    ``model.features_.transform_evidence``, its row via ``update_features``) and returns nothing;
+    ``get`` returns the current verdict, None before the first valid window. Invalid windows are
+    skipped (a gap does not flush the history). State: at most ``n_windows`` rows of
+    ``2 · (n_relations + 1) · n_states`` floats. Pooling and its open-set limit:
+    :mod:`hydrowatch.condition.evidence`, :class:`ConditionModel` (``pooled_excess``).
+
+    Parameters
+    ----------
+    model : ConditionModel
+        Fitted.
+    n_windows : int, default 6
+        Valid windows pooled (1: each window alone). 6 (30 s) settles 13-state duty cycles; 12
+        (60 s) is what the open set needs for look-alike valve faults (docs/command-invariance.md).
+    """
+
+    def __init__(self, model: ConditionModel, *, n_windows: int = 6) -> None:
+        if not hasattr(model, "open_set_"):
+            raise NotFittedError("model must be a fitted ConditionModel. Call fit(...) or ConditionModel.load(dir).")
+        self.model = model
+        self.n_windows = n_windows
+        self._smoother = EvidenceSmoother(n_windows=n_windows, layout=model.features_.evidence_layout())
+
+    def update(self, window: np.ndarray) -> None:
+        """Add one raw window, shape (window, 4 or 5). Returns nothing."""
+        self.update_features(self.model.features_.transform_evidence(np.asarray(window)[None])[0])
+
+    def update_features(self, features: np.ndarray) -> None:
+        """Add one window's ``transform_evidence`` row (NaN: invalid, skipped). Returns nothing."""
+        self._smoother.update(features)
+
+    def get(self) -> Verdict | None:
+        """The verdict of the pooled windows, or None before the first valid window."""
+        pooled = self._smoother.get()
+        latest = self._smoother.latest()
+        if pooled is None or latest is None:
+            return None
+        current = latest[None, : pooled[0].size]
+        if self.n_windows == 1:
+            return self.model.judge_evidence(current, current)[0]
+        return self.model.judge_pooled(pooled[0][None], pooled[1][None], current)[0]

@@ -1,0 +1,249 @@
+"""Compiled kernels of the valve relation: the supply line, block residuals and one-hypothesis fits.
+
+The valve relation (plant-model.md Eqs. 1, 2, 4, 5; study Eqs. 2.1, 2.2, 2.5) integrates the
+supply line from the command side, (Vs/βe)·dPs/dt = Dp·ωp − C·Ps − Kr·max(0, Ps − Pc) − |QL|,
+QL = g·√(Ps ∓ P̂L), and compares QL − Cvx·P̂L with the flow sensor over blocks of ``block``
+samples (trapezoidal means, L/min). :mod:`hydrowatch.condition.parity` explains the model; this
+module holds the loops, fused so that a severity search touches each sample once per trial and
+allocates nothing per trial.
+
+A valve-side hypothesis (code: 0 pump_leak, 1 relief_spring, 2 valve_coil, 3 valve_leak, −1
+nominal) with severity s sets, for a window whose oil has leakage factor f:
+
+- C = (Cp + Cpl + Cvl + [s·Cref if pump_leak])·f, supply-side leakage, m³/(s·Pa);
+- Pc·(1 − s) if relief_spring, cracking pressure, Pa;
+- Kc·(1 − s) if valve_coil, the spool gain's factor;
+- Cvx = (Cvx + [s·Cref if valve_leak])·f, cross-port leakage, m³/(s·Pa).
+
+``valve_leak`` leaves the supply line alone (it only draws QL − Cvx·P̂L), so its residual is
+linear in s and its fit is exact least squares on one integration (:func:`fit_windows`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from hydrowatch.plant.parameters import PlantParameters
+
+M3S_TO_LPM = 60000.0
+"""m³/s → L/min."""
+HYPOTHESIS_CODES: dict[str | None, int] = {None: -1, "pump_leak": 0, "relief_spring": 1, "valve_coil": 2,
+                                           "valve_leak": 3}
+"""Kernel code of each valve-side hypothesis (None: the nominal relation)."""
+LINEAR = 3
+"""Code of the hypothesis whose residual is linear in its severity (valve_leak)."""
+
+
+@njit(cache=True)
+def _valve_flow(g: float, pl: float, ps: float) -> tuple[float, float]:
+    """QL = g·√(Ps ∓ PL) and d|QL|/dPs."""
+    drop = ps - pl if g >= 0.0 else ps + pl
+    if drop <= 0.0:
+        return 0.0, 0.0
+    root = np.sqrt(drop)
+    return g * root, abs(g) / (2.0 * max(root, 30.0))  # slope capped below ~10 mbar of drop
+
+
+@njit(cache=True)
+def _equilibrium(g: float, pl: float, c: float, pc: float, q_geo: float, kr: float) -> float:
+    """Supply pressure at which pump, leakage, relief and valve balance, Pa (bisection: the balance falls with Ps)."""
+    lo, hi = 0.0, q_geo / c
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if q_geo - c * mid - kr * max(0.0, mid - pc) - abs(_valve_flow(g, pl, mid)[0]) > 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True)
+def _step(ps: float, g: float, pl: float, c: float, pc: float, q_geo: float, kr: float, stiffness: float,
+          dt: float) -> float:
+    """One exact exponential step of the supply line over dt with QL linearised about ``ps``, Pa."""
+    q, slope = _valve_flow(g, pl, ps)
+    q_net = q_geo - abs(q) + slope * ps  # pump flow less the linearised valve demand
+    c_eff = c + slope
+    if ps > pc:
+        target = (q_net + kr * pc) / (kr + c_eff)
+        rate = stiffness * (c_eff + kr) * dt
+        ps = target + (ps - target) * np.exp(-rate) if rate < 50.0 else target
+    else:
+        target = q_net / c_eff
+        ps = target + (ps - target) * np.exp(-stiffness * c_eff * dt)
+        if ps > pc:  # crossed the cracking pressure within the step: the relief holds it
+            ps = max((q_net + kr * pc) / (kr + c_eff), pc)
+    return max(ps, 0.0)
+
+
+@njit(cache=True)
+def track_supply(gain: np.ndarray, pl: np.ndarray, leakage: np.ndarray, pc: np.ndarray, q_geo: float, kr: float,
+                 stiffness: float, dt: float, ps_out: np.ndarray, ql_out: np.ndarray) -> None:
+    """Ps [Pa] and QL [m³/s] of windows (m, n) into ``ps_out``, ``ql_out``; see :func:`parity.supply_and_valve_flow`."""
+    m, n = gain.shape
+    for i in range(m):
+        ps = _equilibrium(gain[i, 0], pl[i, 0], leakage[i], pc[i], q_geo, kr)
+        ps_out[i, 0] = ps
+        ql_out[i, 0] = _valve_flow(gain[i, 0], pl[i, 0], ps)[0]
+        for k in range(1, n):
+            ps = _step(ps, 0.5 * (gain[i, k - 1] + gain[i, k]), 0.5 * (pl[i, k - 1] + pl[i, k]), leakage[i], pc[i],
+                       q_geo, kr, stiffness, dt)
+            ps_out[i, k] = ps
+            ql_out[i, k] = _valve_flow(gain[i, k], pl[i, k], ps)[0]
+
+
+@njit(cache=True)
+def _sweep(code: int, sev: np.ndarray, g: np.ndarray, pl: np.ndarray, q: np.ndarray, f: float, base: np.ndarray,
+           block: int, r: np.ndarray, sse: np.ndarray) -> None:
+    """Block-mean residuals (measured − predicted flow), L/min, of one window under hypothesis ``code`` at J severities.
+
+    ``sev`` (J,), ``r`` (≥ J, nb) and ``sse`` (≥ J,) receive the residuals and Σ r² per severity;
+    ``base`` is :func:`constants`. The J supply lines are integrated side by side in one pass over
+    the samples: each is a chain of dependent divisions, roots and exponentials, so several in
+    flight at once run nearly as fast as one.
+    """
+    n = g.shape[0]
+    nb = r.shape[1]
+    nj = sev.shape[0]
+    q_geo, kr, stiffness, dt = base[4], base[5], base[6], base[7]
+    c = np.empty(nj)
+    pc = np.empty(nj)
+    kc = np.empty(nj)
+    cvx = np.empty(nj)
+    ps = np.empty(nj)
+    e_prev = np.empty(nj)
+    for j in range(nj):
+        s = sev[j]
+        c[j] = (base[0] + (s * base[3] if code == 0 else 0.0)) * f
+        pc[j] = base[1] * (1.0 - s) if code == 1 else base[1]
+        kc[j] = 1.0 - s if code == 2 else 1.0
+        cvx[j] = (base[2] + (s * base[3] if code == 3 else 0.0)) * f
+        ps[j] = _equilibrium(kc[j] * g[0], pl[0], c[j], pc[j], q_geo, kr)
+        e_prev[j] = (q[0] - _valve_flow(kc[j] * g[0], pl[0], ps[j])[0] + cvx[j] * pl[0]) * M3S_TO_LPM
+        r[j, :] = 0.0
+    for k in range(1, n):
+        b = (k - 1) // block
+        g_mid = 0.5 * (g[k - 1] + g[k])
+        pl_mid = 0.5 * (pl[k - 1] + pl[k])
+        for j in range(nj):
+            ps[j] = _step(ps[j], kc[j] * g_mid, pl_mid, c[j], pc[j], q_geo, kr, stiffness, dt)
+            e = (q[k] - _valve_flow(kc[j] * g[k], pl[k], ps[j])[0] + cvx[j] * pl[k]) * M3S_TO_LPM
+            if b < nb:
+                r[j, b] += 0.5 * (e_prev[j] + e)
+            e_prev[j] = e
+    for j in range(nj):
+        total = 0.0
+        for i in range(nb):
+            r[j, i] /= block
+            total += r[j, i] * r[j, i]
+        sse[j] = total
+
+
+@njit(cache=True)
+def residual_mse(code: int, severity: np.ndarray, g: np.ndarray, pl: np.ndarray, q: np.ndarray, f: np.ndarray,
+                 base: np.ndarray, block: int) -> np.ndarray:
+    """Mean squared block residual, (L/min)², of windows (m, n) each at its own severity (m,)."""
+    m, n = g.shape
+    nb = (n - 1) // block
+    r = np.empty((1, nb))
+    sse = np.empty(1)
+    out = np.empty(m)
+    for i in range(m):
+        _sweep(code, severity[i:i + 1], g[i], pl[i], q[i], f[i], base, block, r, sse)
+        out[i] = sse[0] / nb
+    return out
+
+
+@njit(cache=True)
+def fit_windows(code: int, lo: float, hi: float, grid: int, iterations: int, g: np.ndarray, pl: np.ndarray,
+                q: np.ndarray, f: np.ndarray, base: np.ndarray, block: int, s_out: np.ndarray,
+                mse_out: np.ndarray, curvature_out: np.ndarray) -> None:
+    """Severity of one valve-side hypothesis per window, clipped to [lo, hi], its mean squared residual and curvature.
+
+    ``curvature_out`` receives the Gauss-Newton curvature Σ (∂r/∂s)² / nb, (L/min)², so that near
+    the fit MSE(s) ≈ MSE(ŝ) + curvature·(s − ŝ)² (what pooling windows with one severity costs).
+
+    Nonlinear hypotheses: a coarse grid of ``grid`` points over [lo, hi], a local grid around its
+    best point (the cost has kinks where the relief opens or closes), then up to ``iterations``
+    damped Gauss-Newton steps with a forward-difference derivative, stopping at the first step
+    that does not lower the cost (the next one would be the same step) or is below 10⁻⁶ of the
+    range (converged). ``valve_leak``: exact
+    least squares on its linear residual, clipped.
+    """
+    m, n = g.shape
+    nb = (n - 1) // block
+    r = np.empty((grid, nb))
+    sse = np.empty(grid)
+    best = np.empty(nb)
+    span0 = (hi - lo) / (grid - 1)
+    delta = 1e-4 * (hi - lo)
+    coarse = np.empty(grid)
+    for j in range(grid):
+        coarse[j] = lo + span0 * j if j < grid - 1 else hi
+    local = np.empty(grid - 2)
+    pair = np.empty(2)
+    for i in range(m):
+        gi, pli, qi, fi = g[i], pl[i], q[i], f[i]
+        if code == LINEAR:
+            pair[0], pair[1] = 0.0, 1.0
+            _sweep(code, pair, gi, pli, qi, fi, base, block, r, sse)
+            num, den = 0.0, 0.0
+            for b in range(nb):
+                slope = r[1, b] - r[0, b]
+                num += slope * r[0, b]
+                den += slope * slope
+            s = min(max(-num / max(den, 1e-300), lo), hi)
+            curvature_out[i] = den / nb
+            pair[0] = s
+            _sweep(code, pair[:1], gi, pli, qi, fi, base, block, r, sse)
+            s_out[i] = s
+            mse_out[i] = sse[0] / nb
+            continue
+        _sweep(code, coarse, gi, pli, qi, fi, base, block, r, sse)
+        top = int(np.argmin(sse[:grid]))
+        s, cost = coarse[top], sse[top]
+        best[:] = r[top]
+        for j in range(grid - 2):
+            local[j] = min(max(s - span0 + 2.0 * span0 * (j + 1) / (grid - 1), lo), hi)
+        _sweep(code, local, gi, pli, qi, fi, base, block, r, sse)
+        top = int(np.argmin(sse[:grid - 2]))
+        if sse[top] < cost:
+            s, cost = local[top], sse[top]
+            best[:] = r[top]
+        span = span0 / (grid - 1)
+        pair[0] = s + delta  # the derivative point
+        _sweep(code, pair[:1], gi, pli, qi, fi, base, block, r, sse)
+        for _ in range(iterations):
+            num, den = 0.0, 0.0
+            for b in range(nb):
+                jac = (r[0, b] - best[b]) / delta
+                num += jac * best[b]
+                den += jac * jac
+            t = min(max(s + min(max(-num / max(den, 1e-300), -span), span), lo), hi)
+            if abs(t - s) < 0.01 * delta:  # converged: a step this small cannot change the cost measurably
+                break
+            pair[0], pair[1] = t, t + delta  # the trial, and its derivative point for the next step
+            _sweep(code, pair, gi, pli, qi, fi, base, block, r[1:], sse[1:])
+            if not sse[1] < cost:
+                break
+            s, cost = t, sse[1]
+            best[:] = r[1]
+            r[0] = r[2]
+        num = 0.0  # r[0] holds the residual at s + delta here (set before the loop and on every accepted step)
+        for b in range(nb):
+            jac = (r[0, b] - best[b]) / delta
+            num += jac * jac
+        s_out[i] = s
+        mse_out[i] = cost / nb
+        curvature_out[i] = num / nb
+
+
+def constants(p: PlantParameters, sample_rate: float) -> np.ndarray:
+    """Nominal constants of the kernels, shape (8,).
+
+    [Cp + Cpl + Cvl (m³/(s·Pa)), Pc (Pa), Cvx (m³/(s·Pa)), Cref = Dp·ωp/Pc (m³/(s·Pa)),
+    Dp·ωp (m³/s), Kr (m³/(s·Pa)), βe/Vs (Pa/m³), dt (s)].
+    """
+    return np.array([p.Cp + p.Cpl + p.Cvl, p.Pc, p.Cvx, p.Dp * p.omega_p / p.Pc, p.Dp * p.omega_p, p.Kr,
+                     p.beta_e / p.Vs, 1.0 / sample_rate])

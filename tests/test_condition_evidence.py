@@ -1,0 +1,105 @@
+"""Evidence pooled over a machine's windows: look-alike holds resolved, unseen look-alikes rejected."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_condition_model import windows_of
+
+from hydrowatch.condition import (
+    ConditionModel,
+    ConditionStream,
+    EvidenceLayout,
+    EvidenceSmoother,
+    trailing_evidence,
+)
+from hydrowatch.errors import DataError, ParameterError
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
+
+STATES = ("healthy", "valve_coil_warning", "valve_coil_alert", "relief_spring_warning", "pump_leak_warning",
+          "valve_leak_warning")
+
+
+@pytest.fixture(scope="module")
+def trained():
+    train = windows_of(STATES, filtered_noise(40, (0, 4), seed=7), seed=8)
+    return train, ConditionModel().fit(train)
+
+
+def test_trailing_evidence_pools_valid_windows_only():
+    rows = np.array([[1.0, 4.0], [np.nan, np.nan], [4.0, 1.0], [2.0, 2.0]])
+    geometric, arithmetic = trailing_evidence(rows, 2)
+    np.testing.assert_allclose(geometric[[0, 2, 3]], [[1.0, 4.0], [2.0, 2.0], [np.sqrt(8), np.sqrt(2)]])
+    np.testing.assert_allclose(arithmetic[3], [3.0, 1.5])  # the NaN row is skipped, not counted
+    assert np.isnan(geometric[1]).all()
+    smoother = EvidenceSmoother(n_windows=2)
+    assert smoother.get() is None
+    for row in rows:
+        smoother.update(row)
+    np.testing.assert_allclose(smoother.get()[0], geometric[3])
+    with pytest.raises(ParameterError):
+        EvidenceSmoother(n_windows=0)
+
+
+def test_one_machine_has_one_severity():
+    # 2 states, 1 relation: state 1's own fault; windows agree on it (0.30) or not (0.25 / 0.35).
+    layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.2, 0.4]], [[0, 0], [0.29, 0.31]]]))
+    ratios = np.ones((2, 4))  # band (2 states) and level (2 states) ratios
+    agree = np.column_stack([ratios, [[0.0, 0.30], [0.0, 0.30]], [[0.0, 100.0], [0.0, 100.0]]])
+    differ = agree.copy()
+    differ[:, 5] = [0.25, 0.35]
+    g, a = trailing_evidence(agree, 2, layout)
+    np.testing.assert_allclose(a[1], 1.0)
+    g, a = trailing_evidence(differ, 2, layout)
+    # Band box [0.2, 0.4] holds both alone; together they share 0.30: 100·0.05² = 0.25 more per window.
+    # The level box [0.29, 0.31] held them 0.04 away already: 100·(0.05² − 0.04²) more.
+    np.testing.assert_allclose(a[1, [1, 3]], [1.25, 1.0 + 100 * (0.05**2 - 0.04**2)])
+    with pytest.raises(DataError):
+        trailing_evidence(agree[:, :5], 2, layout)
+
+
+def test_pooling_resolves_look_alike_holds(trained):
+    _, model = trained
+    holds = np.concatenate([np.full(2000, v) for v in (2.0, 0.8, 2.1, 3.3, 1.9, 1.4, 2.0, 2.9)])
+    test = windows_of(STATES, holds, seed=9)
+    acc = {n: np.mean(np.concatenate([model.predict(w, smoothing=n) == s for s, w in test.items()])) for n in (1, 6)}
+    assert acc[1] < 0.85 and acc[6] > 0.9  # 81 % → 93 %: only the first windows, all near 2 V, stay ambiguous
+
+
+def test_an_unseen_look_alike_is_rejected_per_machine(trained):
+    train, _ = trained
+    model = ConditionModel().fit({s: w for s, w in train.items() if not s.startswith("relief_spring")})
+    test = windows_of(("relief_spring_alert", "valve_coil_alert", "healthy"), duty_cycle(120, (0, 4), seed=3), seed=4)
+    unknown = {n: {s: np.mean(model.predict(w, smoothing=n) == "unknown") for s, w in test.items()} for n in (1, 12)}
+    assert unknown[1]["relief_spring_alert"] < 0.2 < 0.6 < unknown[12]["relief_spring_alert"]  # 4 % → 75 %
+    assert unknown[12]["valve_coil_alert"] == 0.0 and unknown[12]["healthy"] == 0.0
+
+
+def test_stream_matches_batch_pooling(trained):
+    train, model = trained
+    w = train["pump_leak_warning"][:5].copy()
+    w[2, 10:20, 1] = np.nan  # a gap: skipped, the history is kept
+    assert model.pools_open_set()
+    stream = ConditionStream(model, n_windows=3)
+    assert stream.get() is None
+    for row in w:
+        stream.update(row)
+    batch, scores = model.judge_with_scores(w, smoothing=3)
+    np.testing.assert_array_equal(scores, model.features_.transform(w))
+    assert batch[2].state == "invalid"
+    assert stream.get().state == batch[-1].state == "pump_leak_warning"
+    assert stream.get().probabilities == pytest.approx(batch[-1].probabilities)
+
+
+def test_pooled_excess_is_saved_and_older_directories_load(trained, tmp_path):
+    train, _ = trained
+    model = ConditionModel(pooled_excess=0.5).fit({s: train[s] for s in STATES[:3]})
+    model.save(tmp_path / "m")
+    assert ConditionModel.load(tmp_path / "m").pooled_excess_ == 0.5
+    (tmp_path / "m" / "condition_model.json").unlink()  # as round 2 wrote it
+    assert ConditionModel.load(tmp_path / "m").pooled_excess_ == 1.0
+    (tmp_path / "m" / "condition_model.json").write_text(json.dumps({"format": 99}))
+    with pytest.raises(DataError, match="format"):
+        ConditionModel.load(tmp_path / "m")
