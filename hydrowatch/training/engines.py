@@ -33,11 +33,9 @@ REFERENCE_TEMPERATURE_C = 40.0
 def condition_verdicts(model: ConditionModel, raw: np.ndarray) -> tuple[list[Verdict], np.ndarray]:
     """Verdicts and relation scores of raw windows, shape (m, window, 4 or 5) → m verdicts, (m, n_features).
 
-    :meth:`ConditionModel.judge` and :meth:`ConditionFeatures.transform` (the ``kl`` scores), through
-    the condition package's public API only (its internals are still moving); the window's parity
-    estimates are computed twice, once for each.
+    One pass of the parity estimates gives both the verdicts and the band scores (the ``kl`` field).
     """
-    return model.judge(raw), model.features_.transform(raw)
+    return model.judge_with_scores(raw)
 
 
 @dataclass(frozen=True)
