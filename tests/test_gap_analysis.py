@@ -8,6 +8,7 @@ analysis starts from the nominal parameters. benchmarks/bench_gap.py runs the lo
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from hydrowatch.plant.effects import resolve_effects
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.simulator import simulate
+from hydrowatch.recording import SENSORS as SENSORS_ORDER
 from hydrowatch.recording import Recording
 
 
@@ -60,6 +62,23 @@ def test_experiments_are_named_when_the_recording_cannot_show_an_effect() -> Non
     assert set(advice) == {"gear_backlash", "stribeck_friction", "valve_deadband", "valve_saturation", "thermal_drift"}
     assert "bipolar" in advice["gear_backlash"] and "full stroke" in advice["valve_saturation"]
     assert untestable(CANDIDATES, align(rec), 4.4 * rec["voltage"] - 1.0).keys() <= {"gear_backlash", "thermal_drift"}
+
+
+def test_acceptance_needs_an_interval_that_excludes_absence() -> None:
+    by_id = {c.label: c for c in CANDIDATES}
+
+    def fit(effect: str, ci: tuple[float, float], **values: float) -> SimpleNamespace:
+        return SimpleNamespace(ci95={f"{effect}.{by_id[effect].free[0]}": ci}, effects={effect: values})
+
+    assert by_id["quadratic_drag"].distinct_from_absence(fit("quadratic_drag", (0.004, 0.02), Kd=0.01))
+    assert not by_id["quadratic_drag"].distinct_from_absence(fit("quadratic_drag", (-0.001, 0.02), Kd=0.01))
+    # saturation vanishes at full stroke, thermal drift when the oil ends where it started
+    assert not by_id["valve_saturation"].distinct_from_absence(fit("valve_saturation", (0.7, 1.0), x_max=0.9))
+    assert by_id["valve_saturation"].distinct_from_absence(fit("valve_saturation", (0.45, 0.55), x_max=0.5))
+    assert not by_id["thermal_drift"].distinct_from_absence(fit("thermal_drift", (35.0, 50.0), T_end=45.0,
+                                                                T_start=40.0))
+    assert by_id["sensor_lowpass (torque)"].sensors == ("torque",)
+    assert by_id["quadratic_drag"].sensors == ("torque",)
 
 
 def test_null_case_reports_parameter_change_not_missing_physics() -> None:
@@ -107,6 +126,12 @@ def test_cli_writes_report_model_and_html(tmp_path) -> None:
     report = json.loads(report_path.read_text())
     assert set(report) >= {"mismatch", "effects", "located", "fit", "calibrated_parameters", "summary"}
     assert [e["id"] for e in report["effects"]] == ["transport_delay"]
+    # Parity localisation: a dead time before the spool breaks the valve relation, not the load side.
+    relations = {r["relation"]: r for r in report["relations"]}
+    assert relations["valve"]["broken"] and relations["valve"]["ratio"] > 3.0
+    assert not relations["load"]["broken"]
+    assert any(row.get("relation") == "valve" and row["sensor"] == "flow" for row in report["located"])
+    assert "the valve relation breaks" in report["summary"]
     model = json.loads(model_path.read_text())
     assert model["schema"] == MODEL_SCHEMA
     params = PlantParameters.from_dict(model["parameters"])
@@ -151,3 +176,38 @@ def test_two_effects_at_once_are_both_named() -> None:
     named = [e["id"] for e in report["effects"]]
     assert named[:2] == ["transport_delay", "quadratic_drag"]
     assert report["fit"]["after"]["torque"] < 0.5 * report["fit"]["calibrated"]["torque"]
+
+
+def test_an_uneven_effect_is_judged_by_its_consistency_not_by_its_largest_blocks() -> None:
+    """Ripple grows with the flow: the raw held-out cost difference is carried by a few loud blocks
+    (a large bootstrap error), yet the cost falls in every block — that passes; a fit of the noise
+    lowers some blocks and raises others — that does not."""
+    from hydrowatch.gap.align import AlignedRecording
+    from hydrowatch.gap.diagnose import judge
+
+    rng = np.random.default_rng(7)
+    n = 24 * 200
+    t = np.arange(n) / 200.0
+    truth = np.vstack([np.sin(t), np.cos(0.7 * t), np.sin(1.3 * t)])
+    ripple = 0.3 * np.exp(2.0 * np.sin(0.4 * t) - 2.0) * np.sin(2 * np.pi * 29.2 * t)
+    measured = truth + 0.05 * rng.standard_normal(truth.shape)
+    measured[2] += ripple
+    block = np.maximum(np.arange(n) - 200, 0) // 600
+    holdout = (np.arange(n) >= 200) & (block % 3 == 1)
+    aligned = AlignedRecording(t, np.ones(n), measured, measured.std(axis=1), (np.arange(n) >= 200) & ~holdout,
+                               holdout, "synthetic")
+
+    def model(prediction: np.ndarray, k: int) -> SimpleNamespace:
+        r = (measured - prediction) / aligned.scale[:, None]
+        return SimpleNamespace(prediction=prediction, z=np.zeros(k),
+                               fit_cost=float(np.sum(r[:, aligned.fit_mask] ** 2) / aligned.fit_mask.sum()))
+
+    current = model(truth, 9)
+    found = judge(aligned, current, SimpleNamespace(fit=model(truth + np.vstack([0 * t, 0 * t, ripple]), 11)))
+    assert found["gain"] > 0.1 and found["gain"] < 2.0 * found["gain_se"]  # the round-1 rule rejected it
+    assert found["consistency"] > 2.0 and SENSORS_ORDER[int(found["improved"])] == "torque"
+    # a "candidate" that follows this recording's noise in half the held-out blocks and nothing else
+    noise = measured - truth - np.vstack([0 * t, 0 * t, ripple])
+    half = np.where(np.arange(n) % 400 < 200, 1.0, -1.0) * 0.5
+    noise_fit = judge(aligned, current, SimpleNamespace(fit=model(truth + half * noise, 10)))
+    assert abs(noise_fit["consistency"]) < 2.0

@@ -7,7 +7,8 @@ docs/gap.md for the method, the report's additions and the saved model format.
 from hydrowatch.gap.analysis import GapAnalyser, Unidentified, analyse_gap
 from hydrowatch.gap.calibrate import CALIBRATED
 from hydrowatch.gap.candidates import CANDIDATES, Candidate
+from hydrowatch.gap.relations import RELATIONS, RelationCheck, check_relations
 from hydrowatch.gap.report import MODEL_SCHEMA, read_model
 
-__all__ = ["CALIBRATED", "CANDIDATES", "MODEL_SCHEMA", "Candidate", "GapAnalyser", "Unidentified", "analyse_gap",
-           "read_model"]
+__all__ = ["CALIBRATED", "CANDIDATES", "MODEL_SCHEMA", "RELATIONS", "Candidate", "GapAnalyser", "RelationCheck",
+           "Unidentified", "analyse_gap", "check_relations", "read_model"]

@@ -1,4 +1,4 @@
-"""The sim-to-real gap analysis end to end: align → calibrate → locate → diagnose → correct → report.
+"""The sim-to-real gap analysis end to end: align → calibrate → diagnose → correct → locate → report.
 
 :class:`GapAnalyser` is a batch estimator (scikit-learn convention): ``fit(recording)`` returns
 self with ``report_`` (the contract's ``hydrowatch gap`` JSON as a dict), ``model_`` (the
@@ -7,6 +7,7 @@ augmented simulator configuration) and the intermediate fits for plotting.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,6 +20,7 @@ from hydrowatch.gap.candidates import select_candidates, untestable
 from hydrowatch.gap.correction import SparseCorrection, build_library
 from hydrowatch.gap.diagnose import WHITE_LIMIT, Diagnosis, diagnose, residual_is_white
 from hydrowatch.gap.locate import noise_std, whiteness
+from hydrowatch.gap.relations import STRUCTURE, RelationCheck, check_relations
 from hydrowatch.gap.report import build_report, model_config
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.effects import Effects, resolve_effects
@@ -67,9 +69,11 @@ class GapAnalyser:
     aligned_ : AlignedRecording
     nominal_prediction_, calibrated_, diagnosis_ : the fits, for plots
     unidentified_ : list of Unidentified
+    relations_ : list of RelationCheck
+        The component relations (load, motor, valve) checked on the recording (parity localisation).
     report_ : dict
         The contract's report (``mismatch``, ``effects``, ``located``, ``fit``,
-        ``calibrated_parameters``, ``summary``) plus ``noise``, ``experiments``, ``trials``.
+        ``calibrated_parameters``, ``summary``) plus ``relations``, ``noise``, ``experiments``, ``trials``.
     model_ : dict
         Simulator configuration of the augmented model (``parameters``, ``effects``).
     """
@@ -106,8 +110,9 @@ class GapAnalyser:
         self.diagnosis_ = diagnosis
         self.unidentified_ = unidentified
         self.after_prediction_ = _after(diagnosis.final.prediction, unidentified)
+        self.relations_ = _relations(aligned, calibrated, diagnosis.final)
         self.report_ = build_report(aligned, nominal, nominal_prediction, calibrated, diagnosis, unidentified,
-                                    self.after_prediction_)
+                                    self.after_prediction_, self.relations_)
         self.model_ = model_config(diagnosis.final, unidentified)
         return self
 
@@ -138,6 +143,23 @@ def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float
         if corr.holdout_gain_ >= 0.1 and rms > 1.2 * noise:
             out.append(Unidentified(sensor, corr, final.prediction[i] + corr.predict(library)))
     return out
+
+
+def _relations(aligned: AlignedRecording, calibrated: OutputErrorFit, final: OutputErrorFit) -> list[RelationCheck]:
+    """The component relations on the measured sensors, against their floor and noise propagated around
+    the final model (relations.py).
+
+    The sensor noise is the smaller of the calibrated and final models' estimates (a model that
+    misses structure leaves plant response in the 70–100 Hz band the estimate reads).
+    """
+    used = aligned.used_mask
+    noise = np.array([min(noise_std(aligned.measured[i, used] - fit.prediction[i, used]) for fit in (calibrated, final))
+                      for i in range(len(SENSORS))])
+    structural = {name: {k: v for k, v in final.effects.items() if k not in STRUCTURE[name]} for name in STRUCTURE}
+    kinds = list({json.dumps(e, sort_keys=True): e for e in structural.values()}.values())
+    sims = simulate_sensors(aligned, [final.parameters] * len(kinds), kinds)
+    nominal = {name: sims[kinds.index(e)] for name, e in structural.items()}
+    return check_relations(aligned.voltage, aligned.measured, nominal, final.prediction, noise, final.parameters, used)
 
 
 def _after(prediction: np.ndarray, unidentified: list[Unidentified]) -> np.ndarray:

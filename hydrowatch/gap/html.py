@@ -125,6 +125,11 @@ def render_html(analyser: GapAnalyser) -> str:
         + f"<td>{100 * report['noise'][s]:.2f}</td></tr>" for s in SENSORS)
     effects = "".join(f"<li><b>{html.escape(e['id'])}</b>: {html.escape(e['evidence'])}</li>"
                       for e in report["effects"])
+    relations = "".join(
+        f"<tr><td>{r['relation']}</td><td>{html.escape(r['component'])}</td><td>{r['ratio']:.2f}</td>"
+        f"<td>{'broken' if r['broken'] else 'holds'}</td><td>{html.escape(r['regime'])}</td>"
+        f"<td>{r['share']:.2f}</td></tr>"
+        for r in report["relations"])
     plots = [("Fit per sensor", _fit_bars(report)), ("Overlays on held-out data", _overlays(analyser)),
              ("Residual spectra", _spectra(analyser)), ("Residual correlations", _correlations(analyser))]
     figures = "".join(f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{p}'/>" for t, p in plots)
@@ -134,7 +139,9 @@ def render_html(analyser: GapAnalyser) -> str:
         f"<h1>Sim-to-real gap</h1><p>{html.escape(report['summary'])}</p>"
         f"<h2>Effects</h2><ul>{effects or '<li>none</li>'}</ul>"
         "<h2>Held-out NRMSE, %</h2><table><tr><th>sensor</th><th>nominal</th><th>calibrated</th><th>after</th>"
-        f"<th>noise ceiling</th></tr>{rows}</table>{figures}"
+        f"<th>noise ceiling</th></tr>{rows}</table>"
+        "<h2>Component relations (residual RMS / noise-only level)</h2><table><tr><th>relation</th>"
+        f"<th>component</th><th>ratio</th><th></th><th>where</th><th>share</th></tr>{relations}</table>{figures}"
         f"<h2>Report (JSON)</h2><pre>{html.escape(json.dumps(report, indent=1))}</pre></body></html>"
     )
 

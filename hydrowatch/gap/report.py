@@ -9,6 +9,7 @@ recording cannot show and the run that would), ``trials`` (every candidate judge
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,6 +20,7 @@ from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit
 from hydrowatch.gap.diagnose import Diagnosis, Trial
 from hydrowatch.gap.locate import noise_std, nrmse, regimes, strongest_regime
+from hydrowatch.gap.relations import RELATIONS, RelationCheck, describe
 from hydrowatch.plant.effects import resolve_effects
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS, UNITS
@@ -47,8 +49,14 @@ def noise_ceiling(aligned: AlignedRecording, prediction: np.ndarray) -> dict[str
     return out
 
 
-def located(aligned: AlignedRecording, prediction: np.ndarray, noise: dict[str, float]) -> list[dict[str, Any]]:
-    """Mismatched sensors, largest excess first, each with the region that holds most of its error."""
+RELATION_OUTPUT = {"load": "torque", "motor": "flow", "valve": "flow"}
+"""The sensor each component relation predicts (the ``sensor`` of its ``located`` entry)."""
+
+
+def located(aligned: AlignedRecording, prediction: np.ndarray, noise: dict[str, float],
+            relations: Sequence[RelationCheck] = ()) -> list[dict[str, Any]]:
+    """Mismatched sensors, largest excess first, each with the region that holds most of its error; then
+    the broken component relations, most broken first (``relation``, ``component``, ``ratio`` added)."""
     fit = fit_table(aligned, prediction)
     mask = aligned.used_mask
     rows = []
@@ -61,7 +69,10 @@ def located(aligned: AlignedRecording, prediction: np.ndarray, noise: dict[str, 
         best = strongest_regime(found)
         rows.append((fit[s] ** 2 - noise[s] ** 2, {"sensor": s, "regime": best.label, "share": round(best.share, 3)}))
     rows.sort(key=lambda row: -row[0])
-    return [row for _, row in rows]
+    broken = sorted((c for c in relations if c.broken), key=lambda c: -c.ratio)
+    return [row for _, row in rows] + [
+        {"sensor": RELATION_OUTPUT[c.name], "regime": c.regime.label, "share": round(c.regime.share, 3),
+         "relation": c.name, "component": RELATIONS[c.name], "ratio": round(c.ratio, 3)} for c in broken]
 
 
 def _pct(x: float) -> str:
@@ -78,7 +89,8 @@ def _effect_entry(aligned: AlignedRecording, trial: Trial, before: np.ndarray, f
         cis.append(f"{p} = {params[p]:.4g} (95 % CI {lo:.4g}…{hi:.4g})")
     b, a = fit_table(aligned, before), fit_table(aligned, trial.refit.fit.prediction)
     sensor = max(SENSORS, key=lambda s: b[s] - a[s])
-    evidence = (f"held-out cost −{_pct(trial.gain)} (± {_pct(trial.gain_se)}), ΔBIC {trial.delta_bic:.0f}; "
+    evidence = (f"held-out cost −{_pct(trial.gain)} (± {_pct(trial.gain_se)}; lower in 1 s blocks at "
+                f"z = {trial.consistency:.1f}), ΔBIC {trial.delta_bic:.0f}; "
                 f"{', '.join(cis)}; held-out {sensor} NRMSE {_pct(b[sensor])} → {_pct(a[sensor])}")
     return {"id": c.id, "parameters": params, "evidence": evidence}
 
@@ -115,10 +127,10 @@ def _fits(fit: dict[str, float]) -> str:
 
 def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_prediction: np.ndarray,
                  calibrated: OutputErrorFit, diagnosis: Diagnosis, unidentified: list[Unidentified],
-                 after_prediction: np.ndarray) -> dict[str, Any]:
+                 after_prediction: np.ndarray, relations: list[RelationCheck]) -> dict[str, Any]:
     """The report dict (module docstring), with a plain-language summary carrying the numbers."""
     noise = noise_ceiling(aligned, after_prediction)
-    where = located(aligned, calibrated.prediction, noise)
+    where = located(aligned, calibrated.prediction, noise, relations)
     effects = []
     before = calibrated.prediction
     for trial in diagnosis.accepted:
@@ -129,24 +141,24 @@ def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_pr
     fit = {"nominal": fit_table(aligned, nominal_prediction), "calibrated": fit_table(aligned, calibrated.prediction),
            "after": fit_table(aligned, after_prediction)}
     table = calibrated_table(nominal, calibrated)
+    keys = ("gain", "gain_se", "consistency", "delta_bic", "explained", "worst_sensor", "improved", "distinct")
     trials = [[{"effect": t.refit.candidate.label, "gain": round(t.gain, 4), "gain_se": round(t.gain_se, 4),
-                "delta_bic": round(t.delta_bic, 1), "explained": round(t.explained, 3),
-                "worst_sensor": round(t.worst_sensor, 3), "passed": t.passed,
-                "added": any(t is a for a in diagnosis.accepted)} for t in rnd]
-              + [{"effect": label, "gain": None, "gain_se": None, "delta_bic": None, "explained": None,
-                  "worst_sensor": None, "passed": False, "added": False}
-                 for label in out]
+                "consistency": round(t.consistency, 2), "delta_bic": round(t.delta_bic, 1),
+                "explained": round(t.explained, 3), "worst_sensor": round(t.worst_sensor, 3), "improved": t.improved,
+                "distinct": t.distinct, "passed": t.passed, "added": any(t is a for a in diagnosis.accepted)}
+               for t in rnd]
+              + [{"effect": label, **dict.fromkeys(keys), "passed": False, "added": False} for label in out]
               for rnd, out in zip(diagnosis.rounds, diagnosis.scanned_out)]
     report = {
         "mismatch": bool(effects), "effects": effects, "located": where, "fit": fit,
-        "calibrated_parameters": table, "noise": noise, "experiments": dict(diagnosis.unrevealable),
-        "trials": trials,
+        "calibrated_parameters": table, "relations": [c.as_dict() for c in relations], "noise": noise,
+        "experiments": dict(diagnosis.unrevealable), "trials": trials,
     }
-    report["summary"] = summary(report, _parameter_changes(table))
+    report["summary"] = summary(report, _parameter_changes(table), describe(list(relations)))
     return report
 
 
-def summary(report: dict[str, Any], changes: str) -> str:
+def summary(report: dict[str, Any], changes: str, relations: str = "") -> str:
     """One paragraph in plain words with the numbers (gap-method.md, "Reporting")."""
     fit, noise = report["fit"], report["noise"]
     parts = []
@@ -154,10 +166,12 @@ def summary(report: dict[str, Any], changes: str) -> str:
         names = ", ".join(e["id"] if e["id"] != "unidentified"
                           else f"an unidentified effect in {e['parameters']['sensor']}" for e in report["effects"])
         parts.append(f"Missing physics: {names}.")
-        if report["located"]:
+        sensors = [row for row in report["located"] if "relation" not in row]
+        if sensors:
             loc = "; ".join(f"{row['sensor']} error mostly in {row['regime']} (share {row['share']:.2f})"
-                            for row in report["located"])
+                            for row in sensors)
             parts.append(f"After calibration the {loc}.")
+        parts.append(relations)
         for e in report["effects"]:
             parts.append(f"{e['id']}: {e['evidence']}.")
         parts.append(f"Held-out NRMSE calibrated {_fits(fit['calibrated'])} → with the effects {_fits(fit['after'])} "
@@ -172,11 +186,13 @@ def summary(report: dict[str, Any], changes: str) -> str:
         else:
             parts.append("No missing physics: no candidate effect passed and the remaining error is at the noise "
                          f"level (held-out NRMSE {_fits(fit['after'])}; noise ceiling {_fits(noise)}).")
+    if not report["mismatch"]:
+        parts.append(relations)
     parts.append(f"Nominal model NRMSE {_fits(fit['nominal'])}; calibrated parameter changes: {changes}.")
     if report["experiments"]:
         parts.append("Not testable with this recording: " + "; ".join(
             f"{k} needs {v}" for k, v in report["experiments"].items()) + ".")
-    return " ".join(parts)
+    return " ".join(p for p in parts if p)
 
 
 def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dict[str, Any]:
