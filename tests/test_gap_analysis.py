@@ -77,6 +77,10 @@ def test_acceptance_needs_an_interval_that_excludes_absence() -> None:
     assert by_id["valve_saturation"].distinct_from_absence(fit("valve_saturation", (0.45, 0.55), x_max=0.5))
     assert not by_id["thermal_drift"].distinct_from_absence(fit("thermal_drift", (35.0, 50.0), T_end=45.0,
                                                                 T_start=40.0))
+    # a travel limit above every command the recording gives acts on overshoots alone: not accepted
+    limit = SimpleNamespace(parameters=PlantParameters(), effects={"valve_saturation": {"x_max": 0.83}})
+    assert not by_id["valve_saturation"].exercised(limit, np.linspace(0.0, 4.0, 1000))
+    assert by_id["valve_saturation"].exercised(limit, np.linspace(0.0, 4.5, 1000))
     assert by_id["sensor_lowpass (torque)"].sensors == ("torque",)
     assert by_id["quadratic_drag"].sensors == ("torque",)
 

@@ -75,6 +75,18 @@ class Candidate:
         absent = fit.effects[self.id][self.absent] if isinstance(self.absent, str) else self.absent
         return not lo <= absent <= hi
 
+    def exercised(self, fit: OutputErrorFit, voltage: np.ndarray) -> bool:
+        """Whether the recording reaches the fitted effect at all (≥ 1 % of the samples).
+
+        Only a travel limit can sit where the command never goes: a fitted x_max above the steady
+        spool position of the highest command acts on overshoots alone, a sign that the limit stands
+        in for something else.
+        """
+        if self.id != "valve_saturation":
+            return True
+        p = fit.parameters
+        return bool(np.mean(p.Kc * voltage / p.u_max > fit.effects[self.id]["x_max"]) >= 0.01)
+
     def effect(self, **values: float) -> dict[str, float]:
         """The effect's parameter mapping: defaults, then ``fixed``, then ``values``."""
         base = {name: spec[0] for name, spec in EFFECTS[self.id].parameters.items()}

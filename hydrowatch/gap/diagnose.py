@@ -18,7 +18,9 @@ accepts the best one only if all of these hold (gap-method.md, step 4):
   fitting blocks, n_eff the sample count shrunk by the residual's lag-1 autocorrelation
   (a prewhitening correction).
 
-* the 95 % interval of the effect's main parameter excludes the value at which the effect vanishes;
+* the 95 % interval of the effect's main parameter excludes the value at which the effect vanishes,
+  and the recording reaches the fitted effect (:meth:`Candidate.exercised`: a travel limit above
+  every command is rejected);
 * from the second round on, the sensor whose held-out error falls most is one the catalog says the
   effect shows in (plant-model.md, "where it shows").
 
@@ -284,6 +286,7 @@ def diagnose(
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
                       and j["explained"] >= min_explained and j["worst_sensor"] <= max_worse and trial.distinct
+                      and full.candidate.exercised(full.fit, aligned.voltage[aligned.used_mask])
                       and (not diagnosis.accepted or trial.improved in full.candidate.sensors))
                 trial = replace(trial, passed=bool(ok))
             else:
