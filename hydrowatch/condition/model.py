@@ -34,7 +34,7 @@ import numpy as np
 from hydrowatch.condition.evidence import trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
-from hydrowatch.health.classifier import HealthClassifier, fit_temperature
+from hydrowatch.health.classifier import HealthClassifier, fit_temperature, labelled_rows
 from hydrowatch.health.openset import OpenSetRule
 from hydrowatch.health.verdict import Verdict, judge
 
@@ -197,11 +197,7 @@ class ConditionModel:
         template = self.features or ConditionFeatures()
         self.features_ = ConditionFeatures(**{**template.get_params(), "kind": "scores"}).fit(windows_by_state)
         states = list(self.features_.states_)
-        blocks = [self.features_.transform_with_levels(windows_by_state[s]) for s in states]
-        X = np.concatenate(blocks)
-        y = np.repeat(np.asarray(states), [b.shape[0] for b in blocks])
-        valid = np.all(np.isfinite(X), axis=1)
-        X, y = X[valid], y[valid]
+        X, y = labelled_rows({s: self.features_.transform_with_levels(windows_by_state[s]) for s in states})
         if self.classifier is None:
             rule = ParityRule(level_weight=self.features_.level_weight)
             self.decision_: ParityRule | HealthClassifier = rule.fit(X, y, states)

@@ -18,7 +18,7 @@ products.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,25 @@ from hydrowatch.log import event, get_logger
 
 _log = get_logger(__name__)
 _ARRAYS = ("W1_", "b1_", "W2_", "b2_", "feature_mean_", "feature_scale_")
+
+
+def labelled_rows(blocks: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Feature rows of every state stacked with their labels, non-finite rows (invalid windows) dropped.
+
+    Parameters
+    ----------
+    blocks : mapping of state to ndarray, shape (m_k, n_features)
+        Each state's feature rows, in the order the states should appear.
+
+    Returns
+    -------
+    X : ndarray, shape (n, n_features)
+    y : ndarray of str, shape (n,)
+    """
+    X = np.concatenate(list(blocks.values()))
+    y = np.repeat(np.asarray(list(blocks)), [b.shape[0] for b in blocks.values()])
+    valid = np.all(np.isfinite(X), axis=1)
+    return X[valid], y[valid]
 
 
 def stratified_split(

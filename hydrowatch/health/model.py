@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.errors import DataError, NotFittedError
-from hydrowatch.health.classifier import HealthClassifier
+from hydrowatch.health.classifier import HealthClassifier, labelled_rows
 from hydrowatch.health.features import RelativeEntropyFeatures
 from hydrowatch.health.metrics import accuracy, confusion_matrix
 from hydrowatch.health.openset import OpenSetRule
@@ -85,11 +85,7 @@ class HealthModel:
             )
         self.features_ = _clone(self.features or RelativeEntropyFeatures()).fit(base_errors, sensors)
         states = list(self.features_.states_)
-        blocks = [self.features_.transform(window_errors[s]) for s in states]
-        X = np.concatenate(blocks)
-        y = np.repeat(np.asarray(states), [b.shape[0] for b in blocks])
-        valid = np.all(np.isfinite(X), axis=1)
-        X, y = X[valid], y[valid]
+        X, y = labelled_rows({s: self.features_.transform(window_errors[s]) for s in states})
         self.classifier_ = _clone(self.classifier or HealthClassifier()).fit(X, y, classes=states)
         split = self.classifier_.split_
         calibration = np.concatenate([split["train"], split["validation"]])
