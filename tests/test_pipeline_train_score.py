@@ -96,3 +96,22 @@ def test_score_short_file_is_invalid_and_unlabelled_train_data_is_an_error(
     write_recording(short, tmp_path / "unlabelled.csv")
     assert main(["train", "--data", str(tmp_path / "unlabelled.csv"), "--out", str(tmp_path / "m")]) == 2
     assert "health label" in capsys.readouterr().err
+
+
+def test_default_train_fits_box_jenkins_narx_and_parity(trained: dict, capsys: pytest.CaptureFixture[str]) -> None:
+    """The contract's ``train``: Box-Jenkins and NARX reference models (two runs), then the parity bundle,
+    which ``score --model OUT`` takes as the folder's default."""
+    out = trained["root"] / "all"
+    capsys.readouterr()
+    assert main(["train", "--data", str(trained["data"]), "--out", str(out), "--narx", "2,2,3", "--narx-iterations",
+                 "5", "--tracking-uri", trained["uri"], "--experiment", "all", "--no-register"]) == 0
+    summaries = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [(s["method"], s.get("reference")) for s in summaries] == [
+        ("entropy", "bj"), ("entropy", "narx"), ("parity", None)], summaries
+    assert len({s["run_id"] for s in summaries}) == 3
+    assert json.loads((out / "bundles.json").read_text()) == {"default": "parity", "bundles": ["bj", "narx", "parity"]}
+    assert json.loads((out / "narx" / "manifest.json").read_text())["reference"] == "narx"
+    assert main(["score", "--model", str(out), "--data", str(trained["test"] / "load_alert.parquet"), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["summary"]["windows"] >= 5
+    assert sum(w["state"] == "load_alert" for w in result["windows"]) / result["summary"]["windows"] >= 0.9

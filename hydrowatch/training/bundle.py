@@ -8,6 +8,9 @@ Layout::
       health/               base_distributions.json, classifier.npz, open_set.json
       condition/            method "parity": condition_features.json, decision.json, open_set.json
 
+A folder of several bundles (``train --method both|all``) holds ``<key>/`` per bundle and
+``bundles.json`` naming the default one, which :meth:`ModelBundle.load` takes for the folder.
+
 A manifest without ``method`` (written before the parity method existed) is an ``entropy`` bundle.
 
 A bundle is loaded from its directory or from the MLflow model registry (``models:/NAME@ALIAS``
@@ -33,6 +36,8 @@ from hydrowatch.training.reference import SensorReference
 FORMAT = "hydrowatch.model_bundle"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
+INDEX = "bundles.json"
+"""Index of a folder of several bundles (``train --method both|all``): ``{"default": KEY, "bundles": [KEY, ...]}``."""
 
 
 @dataclass
@@ -138,6 +143,8 @@ class ModelBundle:
     def load(cls, directory: str | Path, *, version: str | None = None) -> ModelBundle:
         """Read a bundle directory; ``version`` overrides the manifest's (e.g. a registry version)."""
         d = Path(directory)
+        if not (d / MANIFEST).exists() and (d / INDEX).exists():
+            d = d / _default_bundle(d)
         try:
             manifest = json.loads((d / MANIFEST).read_text())
         except (OSError, json.JSONDecodeError) as exc:
@@ -155,6 +162,25 @@ class ModelBundle:
         kind = manifest["reference"]
         references = {s: SensorReference.load(d / "reference", s, kind) for s in manifest["sensors"]}
         return cls(references, HealthModel.load(d / "health"), manifest)
+
+
+def write_index(directory: str | Path, keys: list[str]) -> Path:
+    """Write ``directory/bundles.json`` for the bundles in ``directory/<key>``; the last key is the default."""
+    path = Path(directory) / INDEX
+    path.write_text(json.dumps({"default": keys[-1], "bundles": keys}, indent=1))
+    return path
+
+
+def _default_bundle(directory: Path) -> str:
+    try:
+        index = json.loads((directory / INDEX).read_text())
+        key = str(index["default"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise DataError(f"{INDEX} must be JSON with a 'default' bundle. Got: {exc}.", str(directory / INDEX)) from None
+    if not (directory / key / MANIFEST).exists():
+        raise DataError(f"the default bundle {key!r} named in {INDEX} must be a bundle folder beside it "
+                        f"(with {MANIFEST}). It is missing; retrain with `hydrowatch train`.", str(directory / INDEX))
+    return key
 
 
 def load_bundle(model: str | Path, tracking_uri: str | None = None) -> ModelBundle:

@@ -24,6 +24,10 @@ METHODS = ("parity", "entropy")
 (the study's reference models + relative entropies). ``parity`` is the default: it measures best
 on a working duty cycle (docs/health-pipeline.md)."""
 DEFAULT_METHOD = "parity"
+GROUPS = ("both", "all")
+"""``--method`` values that train several bundles, one run each (:func:`settings_list_from_args`)."""
+DEFAULT_CLI_METHOD = "all"
+"""``train``/``trainer`` default: the contract's Box-Jenkins and NARX reference models, and the parity bundle."""
 DEMO_PLAN = DataPlan(reference_samples=4000, base_samples=6000, classifier_windows=50, window=1000, hop=500)
 """A small data plan (35,500 samples, 177.5 s per state) that trains in about a minute on 2 cores."""
 
@@ -99,9 +103,11 @@ def _ints(text: str, names: tuple[str, ...], flag: str) -> dict[str, int]:
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags that choose what is trained (shared by ``train``, ``trainer`` and ``demo``)."""
     g = parser.add_argument_group("training")
-    g.add_argument("--method", choices=(*METHODS, "both"), default=DEFAULT_METHOD,
-                   help=f"health method (default {DEFAULT_METHOD}: component relations; entropy: the study's "
-                        "reference models + relative entropies; both: one run of each)")
+    g.add_argument("--method", choices=(*METHODS, *GROUPS), default=DEFAULT_CLI_METHOD,
+                   help=f"health method: {DEFAULT_METHOD} (component relations, the verdicts hydrowatch "
+                        "recommends), entropy (the study's reference models + relative entropies, with --reference), "
+                        "both (entropy, then parity), all (default: entropy with Box-Jenkins, entropy with NARX, "
+                        "then parity; three runs to compare in MLflow)")
     g.add_argument("--reference", choices=("narx", "bj"), default="narx",
                    help="reference model kind of the entropy method (default narx)")
     g.add_argument("--narx", default=None, metavar="NU,NY,H",
@@ -134,17 +140,25 @@ def settings_from_args(args: argparse.Namespace) -> TrainingSettings:
     plan = STUDY_PLAN if args.full_plan else DEMO_PLAN
     if args.windows is not None:
         plan = replace(plan, classifier_windows=args.windows)
-    method = DEFAULT_METHOD if getattr(args, "method", DEFAULT_METHOD) == "both" else args.method
+    method = getattr(args, "method", DEFAULT_METHOD)
+    method = DEFAULT_METHOD if method in GROUPS else method
     return TrainingSettings(method=method, reference=args.reference, narx=narx, bj=bj, plan=plan,
                             distribution=args.distribution, seed=args.seed)
 
 
 def settings_list_from_args(args: argparse.Namespace) -> list[TrainingSettings]:
-    """One :class:`TrainingSettings` per method ``--method`` names (``both``: entropy, then parity)."""
+    """One :class:`TrainingSettings` per bundle ``--method`` names.
+
+    ``both``: entropy (``--reference``), then parity; ``all``: entropy with Box-Jenkins, entropy with
+    NARX, then parity. The default method comes last, so a registry alias ends on it.
+    """
     base = settings_from_args(args)
-    if args.method != "both":
-        return [base]
-    return [replace(base, method=m) for m in sorted(METHODS)]
+    if args.method == "both":
+        return [replace(base, method="entropy"), replace(base, method=DEFAULT_METHOD)]
+    if args.method == "all":
+        return [replace(base, method="entropy", reference="bj"), replace(base, method="entropy", reference="narx"),
+                replace(base, method=DEFAULT_METHOD)]
+    return [base]
 
 
 def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:

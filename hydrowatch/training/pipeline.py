@@ -9,6 +9,7 @@ from typing import Any
 
 from hydrowatch.report.training import run_metrics, write_training_artifacts
 from hydrowatch.training.accuracy import COMMANDS, accuracy_metrics, measure_accuracy
+from hydrowatch.training.bundle import write_index
 from hydrowatch.training.data import read_labelled
 from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME, TrainingSettings
 from hydrowatch.training.tracking import log_training
@@ -65,13 +66,20 @@ def train_each(
     data: str | Path, out: str | Path, settings: Sequence[TrainingSettings], *,
     report_dir: str | Path | None = None, **options: Any,
 ) -> Iterator[dict[str, Any]]:
-    """:func:`train_and_track` for each settings (``--method both``); yields the summaries in order.
+    """:func:`train_and_track` for each settings (``--method both|all``); yields the summaries in order.
 
-    With one settings the bundle goes to ``out`` (plots to ``report_dir``); with several, to
-    ``out/<method>`` (``report_dir/<method>``) each, as separate MLflow runs (the registry alias,
-    if any, ends on the last one: the default method).
+    With one settings the bundle goes to ``out`` (plots to ``report_dir``). With several, each goes
+    to ``out/<key>`` (``report_dir/<key>``) as its own MLflow run, the key being the method
+    (``both``: ``entropy``, ``parity``) or, when methods repeat, the settings' name (``all``: ``bj``,
+    ``narx``, ``parity``); ``out/bundles.json`` indexes them and names the last one the default, so
+    ``score --model out`` and the scorer load it (the registry alias, if any, also ends on it).
     """
-    many = len(settings) > 1
-    for s in settings:
-        report = None if report_dir is None else (Path(report_dir) / s.method if many else report_dir)
-        yield train_and_track(data, Path(out) / s.method if many else out, s, report_dir=report, **options)[1]
+    if len(settings) == 1:
+        yield train_and_track(data, out, settings[0], report_dir=report_dir, **options)[1]
+        return
+    methods = [s.method for s in settings]
+    keys = methods if len(set(methods)) == len(methods) else [s.name for s in settings]
+    for key, s in zip(keys, settings):
+        report = None if report_dir is None else Path(report_dir) / key
+        yield train_and_track(data, Path(out) / key, s, report_dir=report, **options)[1]
+        write_index(out, keys[: keys.index(key) + 1])

@@ -1,7 +1,7 @@
 """Trainer service: trains from a recordings folder (e.g. the recorder's) and registers the model.
 
-A thin wrapper over :func:`hydrowatch.training.pipeline.train_each` (``--method``: parity, entropy
-or both, as ``hydrowatch train``): trains once, or every
+A thin wrapper over :func:`hydrowatch.training.pipeline.train_each` (``--method``: parity, entropy,
+both or all, the default, as ``hydrowatch train``): trains once, or every
 ``--every`` seconds (the registry alias then moves to each new version, and scorers started with
 ``--follow-alias`` switch). Files that cannot be read yet (an MCAP the recorder is still writing)
 are skipped. SIGINT/SIGTERM stops it between trainings.
