@@ -1,8 +1,11 @@
 """Right-hand side of the plant's differential equations (plant-model.md, equations 1–8), compiled.
 
-:func:`rates` evaluates the state derivative and the three raw sensors of one machine for a given
-spool command, including every switched-on effect of the catalog. It is branch-cheap: an effect
-that is off costs one comparison. The integrator around it lives in :mod:`hydrowatch.plant.kernel`.
+:func:`derivatives` evaluates the state derivative and the three raw sensors of one machine for a
+given spool command, including every switched-on effect of the catalog. It works on the state as a
+tuple of floats and is inlined into the integrator (:mod:`hydrowatch.plant.kernel`), so the whole
+RK4 step runs in registers. Only the nominal equations are written out in it; each effect is one
+branch to a small function of its own, so an effect that is off costs one comparison and the
+inlined body stays small. :func:`rates` is the same on arrays, for callers outside the kernel.
 
 ODE state of one machine (``N_ODE`` entries, SI units)::
 
@@ -151,10 +154,74 @@ def shaft_torque(e: np.ndarray, theta: float, slip: float) -> float:
     return torque if torque * penetration > 0.0 else 0.0
 
 
+State = tuple[float, float, float, float, float, float, float, float, float]
+"""ODE state of one machine as a tuple (module docstring order); the kernel keeps it in registers."""
+
+
 @njit(cache=True, error_model="numpy")
-def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock: bool,
-          ds: np.ndarray, sensors: np.ndarray) -> None:
-    """State derivative and raw sensors of one machine.
+def _thermal(e: np.ndarray, temperature: float, clock: bool) -> tuple[float, float]:
+    """thermal_drift: leakage factor exp(k·(T − 40 °C)) and dT/dt [K/s] (0 when the clock is stopped)."""
+    leak = math.exp(e[_THERMAL + 4] * (temperature - _T_REF))
+    warming = (e[_THERMAL + 2] - temperature) / e[_THERMAL + 3] if clock else 0.0
+    return leak, warming
+
+
+@njit(cache=True, error_model="numpy")
+def _air_moduli(c: np.ndarray, e: np.ndarray, ps: float, pl: float) -> tuple[float, float]:
+    """entrained_air: βe/Vs of the supply line [Pa/m³] and the chambers' mean bulk modulus [Pa].
+
+    Chamber pressures of a symmetric valve: PA = (Ps + PL)/2, PB = (Ps − PL)/2.
+    """
+    alpha, n_poly = e[_AIR + 1], e[_AIR + 2]
+    beta_s = _air_bulk_modulus(c[C_BE], ps, alpha, n_poly) * c[C_INV_VS]
+    beta_l = 0.5 * (_air_bulk_modulus(c[C_BE], 0.5 * (ps + pl), alpha, n_poly)
+                    + _air_bulk_modulus(c[C_BE], 0.5 * (ps - pl), alpha, n_poly))
+    return beta_s, beta_l
+
+
+@njit(cache=True, error_model="numpy")
+def _rippled_flow(c: np.ndarray, e: np.ndarray, t: float) -> float:
+    """pump_ripple: geometric pump flow Dp·ωp·(1 + a1·sin ωp·t + a2·sin 2ωp·t) at time t [s], m³/s."""
+    phase = c[C_WP] * t
+    return c[C_QGEO] * (1.0 + e[_RIPPLE + 1] * math.sin(phase) + e[_RIPPLE + 2] * math.sin(2.0 * phase))
+
+
+@njit(cache=True, error_model="numpy")
+def _metering_opening(e: np.ndarray, x: float) -> float:
+    """valve_saturation (travel clipped at ±x_max), then valve_deadband (overlap d, rated flow at full stroke)."""
+    if e[_SATURATION] > 0.5:
+        x = min(max(x, -e[_SATURATION + 1]), e[_SATURATION + 1])
+    if e[_DEADBAND] > 0.5:
+        d = e[_DEADBAND + 1]
+        x = math.copysign(max(abs(x) - d, 0.0) / (1.0 - d), x)
+    return x
+
+
+@njit(cache=True, error_model="numpy")
+def _stribeck(e: np.ndarray, wm: float) -> float:
+    """stribeck_friction at motor speed wm [rad/s]: (Tc + (Ts − Tc)·exp(−(ωm/ωst)²))·tanh(ωm/ωε), N·m."""
+    tc, ts, w_st, w_eps = e[_FRICTION + 1], e[_FRICTION + 2], e[_FRICTION + 3], e[_FRICTION + 4]
+    return (tc + (ts - tc) * math.exp(-((wm / w_st) ** 2))) * math.tanh(wm / w_eps)
+
+
+@njit(cache=True, error_model="numpy")
+def _flexible_driveline(c: np.ndarray, e: np.ndarray, motor_torque: float, wg: float, wl: float,
+                        theta: float) -> tuple[float, float, float, float]:
+    """gear_backlash / shaft_compliance: motor side Jm, load JL, a (possibly backlashed) spring between.
+
+    Returns dωm/dt [rad/s²], dωL/dt [rad/s²], dθ/dt [rad/s] and the shaft torque [N·m].
+    """
+    slip = wg - wl
+    shaft = shaft_torque(e, theta, slip)
+    dwm = (motor_torque - shaft * c[C_INV_NETA]) * c[C_INV_JM]
+    dwl = (shaft - _load_torque(c, e, wl)) * c[C_INV_JL]
+    return dwm, dwl, slip, shaft
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def derivatives(c: np.ndarray, e: np.ndarray, s: State, u: float, t: float,
+                clock: bool) -> tuple[State, tuple[float, float, float]]:
+    """State derivative and raw sensors of one machine, on a state tuple (compiled into the integrator).
 
     Parameters
     ----------
@@ -162,7 +229,7 @@ def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock
         Coefficients of the machine's parameters (:func:`coefficients`).
     e : ndarray, shape (EFFECT_WIDTH,)
         Effect row (see :data:`hydrowatch.plant.effects.EFFECT_OFFSET`).
-    s : ndarray, shape (N_ODE,)
+    s : tuple of N_ODE floats
         ODE state (module docstring).
     u : float
         Command reaching the spool, V (after hysteresis and dead time).
@@ -170,87 +237,69 @@ def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock
         Time, s (pump_ripple's phase).
     clock : bool
         False freezes the oil temperature (settling).
-    ds : ndarray, shape (N_ODE,)
-        Output: d(state)/dt.
-    sensors : ndarray, shape (3,)
-        Output: flow [L/min], gearbox speed [rad/s], shaft torque [N·m] before filter and noise (Eq. 8).
+
+    Returns
+    -------
+    ds : tuple of N_ODE floats
+        d(state)/dt.
+    sensors : tuple of 3 floats
+        Flow [L/min], gearbox speed [rad/s], shaft torque [N·m] before filter and noise (Eq. 8).
+
     """
-    ps = max(s[PS], 0.0)
-    pl = min(max(s[PL], -ps), ps)
-    x = s[X]
-    wm = s[WM]
+    x, v, ps, pl, wm, wl, th, temp, yf = s
+    ps = max(ps, 0.0)
+    pl = min(max(pl, -ps), ps)
 
     # thermal_drift: laminar leakages ∝ 1/viscosity, viscous damping ∝ viscosity.
-    leak = 1.0  # leakage factor at the current oil temperature
-    ds[TEMP] = 0.0
-    if e[_THERMAL] > 0.5:
-        leak = math.exp(e[_THERMAL + 4] * (s[TEMP] - _T_REF))
-        if clock:
-            ds[TEMP] = (e[_THERMAL + 2] - s[TEMP]) / e[_THERMAL + 3]
-
-    beta_s = c[C_BE_VS]
-    beta_l = c[C_BE]
-    if e[_AIR] > 0.5:
-        alpha, n_poly = e[_AIR + 1], e[_AIR + 2]
-        beta_s = _air_bulk_modulus(c[C_BE], ps, alpha, n_poly) * c[C_INV_VS]
-        # Chamber pressures of a symmetric valve: PA = (Ps + PL)/2, PB = (Ps - PL)/2.
-        beta_l = 0.5 * (_air_bulk_modulus(c[C_BE], 0.5 * (ps + pl), alpha, n_poly)
-                        + _air_bulk_modulus(c[C_BE], 0.5 * (ps - pl), alpha, n_poly))
+    leak, dtemp = _thermal(e, temp, clock) if e[_THERMAL] > 0.5 else (1.0, 0.0)
+    beta_s, beta_l = _air_moduli(c, e, ps, pl) if e[_AIR] > 0.5 else (c[C_BE_VS], c[C_BE])
 
     # Eq. 1 pump and Eq. 2 relief valve (study Eq. 2.1, 2.5).
-    q_geo = c[C_QGEO]
-    if e[_RIPPLE] > 0.5:
-        phase = c[C_WP] * t
-        q_geo *= 1.0 + e[_RIPPLE + 1] * math.sin(phase) + e[_RIPPLE + 2] * math.sin(2.0 * phase)
+    q_geo = _rippled_flow(c, e, t) if e[_RIPPLE] > 0.5 else c[C_QGEO]
     qp = q_geo - c[C_CPUMP] * leak * ps
     qr = c[C_KR] * max(0.0, ps - c[C_PC])
 
     # Eq. 3 spool.
-    ds[X] = s[V]
-    ds[V] = c[C_SPOOL] * u - c[C_WV2] * x - c[C_DAMP] * s[V]
+    dv = c[C_SPOOL] * u - c[C_WV2] * x - c[C_DAMP] * v
 
     # Eq. 4 valve flow (study Eq. 2.2) through the metering opening.
-    xo = x
-    if e[_SATURATION] > 0.5:
-        xo = min(max(xo, -e[_SATURATION + 1]), e[_SATURATION + 1])
-    if e[_DEADBAND] > 0.5:
-        d = e[_DEADBAND + 1]
-        xo = math.copysign(max(abs(xo) - d, 0.0) / (1.0 - d), xo)
+    xo = _metering_opening(e, x) if e[_SATURATION] > 0.5 or e[_DEADBAND] > 0.5 else x
     drop = ps - pl if xo >= 0.0 else ps + pl
     ql = c[C_KQ] * xo * math.sqrt(max(drop, 0.0))
 
     # Eq. 5 supply line, Eq. 6 motor chambers (study Eq. 2.3).
-    ds[PS] = beta_s * (qp - qr - abs(ql) - c[C_CVL] * leak * ps)
+    dps = beta_s * (qp - qr - abs(ql) - c[C_CVL] * leak * ps)
     cvx = c[C_CVX] * leak
-    ds[PL] = c[C_4_VT] * beta_l * (ql - cvx * pl - c[C_DM] * wm - c[C_CTM] * leak * pl)
+    dpl = c[C_4_VT] * beta_l * (ql - cvx * pl - c[C_DM] * wm - c[C_CTM] * leak * pl)
 
     # Eq. 7 shaft (study Eq. 2.4), reflected to the motor; stribeck_friction acts on the motor.
-    friction = 0.0
-    if e[_FRICTION] > 0.5:
-        tc, ts, w_st, w_eps = e[_FRICTION + 1], e[_FRICTION + 2], e[_FRICTION + 3], e[_FRICTION + 4]
-        friction = (tc + (ts - tc) * math.exp(-((wm / w_st) ** 2))) * math.tanh(wm / w_eps)
+    friction = _stribeck(e, wm) if e[_FRICTION] > 0.5 else 0.0
     wg = wm * c[C_INV_N]
     motor_torque = c[C_DM] * pl - c[C_BM] / leak * wm - friction
-    backlash = e[_BACKLASH] > 0.5
-    if backlash or e[_SHAFT] > 0.5:
-        # Flexible driveline: motor side Jm, load JL, a (possibly backlashed) spring in between.
-        slip = wg - s[WL]
-        shaft = shaft_torque(e, s[TH], slip)
-        ds[WM] = (motor_torque - shaft * c[C_INV_NETA]) * c[C_INV_JM]
-        ds[WL] = (shaft - _load_torque(c, e, s[WL])) * c[C_INV_JL]
-        ds[TH] = slip
-        torque = shaft
+    if e[_BACKLASH] > 0.5 or e[_SHAFT] > 0.5:
+        dwm, dwl, dth, torque = _flexible_driveline(c, e, motor_torque, wg, wl, th)
     else:
         load = _load_torque(c, e, wg)
-        ds[WM] = (motor_torque - load * c[C_INV_NETA]) * c[C_INV_JT]
-        ds[WL] = 0.0
-        ds[TH] = 0.0
-        torque = load + c[C_JL_N] * ds[WM]
+        dwm = (motor_torque - load * c[C_INV_NETA]) * c[C_INV_JT]
+        dwl, dth = 0.0, 0.0
+        torque = load + c[C_JL_N] * dwm
 
-    # Eq. 8 sensors.
-    sensors[0] = (ql - cvx * pl) * M3S_TO_LPM
-    sensors[1] = wg
-    sensors[2] = torque
-    ds[YF] = 0.0
+    # Eq. 8 sensors; sensor_lowpass filters one of them.
+    flow = (ql - cvx * pl) * M3S_TO_LPM
+    dyf = 0.0
     if e[_LOWPASS] > 0.5:
-        ds[YF] = (sensors[int(e[_LOWPASS + 1])] - s[YF]) / e[_LOWPASS + 2]
+        sensor = int(e[_LOWPASS + 1])
+        raw = flow if sensor == 0 else (wg if sensor == 1 else torque)
+        dyf = (raw - yf) / e[_LOWPASS + 2]
+    return (v, dv, dps, dpl, dwm, dwl, dth, dtemp, dyf), (flow, wg, torque)
+
+
+@njit(cache=True, error_model="numpy")
+def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock: bool,
+          ds: np.ndarray, sensors: np.ndarray) -> None:
+    """:func:`derivatives` on arrays: state s (N_ODE,) in, ds (N_ODE,) and sensors (3,) written (Eqs. 1–8)."""
+    d, raw = derivatives(c, e, (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8]), u, t, clock)
+    for i in range(N_ODE):
+        ds[i] = d[i]
+    for i in range(3):
+        sensors[i] = raw[i]

@@ -13,6 +13,11 @@ Each segment uses ceil(length / h) equal RK4 steps with h = 1 / (fs · substeps)
 the pressures are projected onto Ps >= 0, |PL| <= Ps. Everything the next sample needs is in the
 state row, so chunked calls equal one long call bit for bit.
 
+Speed: inside a segment the ODE state is a tuple of floats, and the right-hand side
+(:func:`~hydrowatch.plant.dynamics.derivatives`) and the RK4 step are inlined into the step loop,
+so a step runs in registers without calls or array traffic. The rare kink bisection calls an
+outlined copy of the step, which keeps the compiled code (and the compile time) small.
+
 Full state row of one machine (``state_width(ring)`` entries): the ODE state (``N_ODE``, see
 :mod:`hydrowatch.plant.dynamics`), then the play operator's output [V], the sample counter k, the
 delay line's write index and the delay line itself (``ring`` past commands, V).
@@ -38,9 +43,10 @@ from hydrowatch.plant.dynamics import (
     WL,
     WM,
     YF,
+    State,
     X,
     coefficients,
-    rates,
+    derivatives,
     shaft_torque,
 )
 from hydrowatch.plant.effects import EFFECT_OFFSET, REFERENCE_TEMPERATURE_C
@@ -76,8 +82,8 @@ def state_width(ring: int) -> int:
     return RING + ring
 
 
-@njit(cache=True, error_model="numpy")
-def _region(c, e, y):  # noqa: ANN001
+@njit(cache=True, error_model="numpy", inline="always")
+def _region(c: np.ndarray, e: np.ndarray, y: State) -> int:
     """Code of the smooth piece of the right-hand side that y lies in (relief open, spool sign, stops...)."""
     x = y[X]
     code = 1 if y[PS] > c[C_PC] else 0
@@ -96,34 +102,65 @@ def _region(c, e, y):  # noqa: ANN001
     return code
 
 
-@njit(cache=True, error_model="numpy")
-def _rk4_step(c, e, y, u, t, h, clock, k1, k2, k3, k4, tmp, sens, y_new):  # noqa: ANN001
-    """One classical RK4 step of length h from (t, y) with the command u held; result in y_new."""
-    rates(c, e, y, u, t, clock, k1, sens)
-    for i in range(N_ODE):
-        tmp[i] = y[i] + 0.5 * h * k1[i]
-    rates(c, e, tmp, u, t + 0.5 * h, clock, k2, sens)
-    for i in range(N_ODE):
-        tmp[i] = y[i] + 0.5 * h * k2[i]
-    rates(c, e, tmp, u, t + 0.5 * h, clock, k3, sens)
-    for i in range(N_ODE):
-        tmp[i] = y[i] + h * k3[i]
-    rates(c, e, tmp, u, t + h, clock, k4, sens)
-    for i in range(N_ODE):
-        y_new[i] = y[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    y_new[PS] = max(y_new[PS], 0.0)
-    y_new[PL] = min(max(y_new[PL], -y_new[PS]), y_new[PS])
+@njit(cache=True, error_model="numpy", inline="always")
+def _shifted(y: State, a: float, k: State) -> State:
+    """y + a·k, element by element."""
+    return (y[0] + a * k[0], y[1] + a * k[1], y[2] + a * k[2], y[3] + a * k[3], y[4] + a * k[4],
+            y[5] + a * k[5], y[6] + a * k[6], y[7] + a * k[7], y[8] + a * k[8])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rk4_step(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: float, clock: bool) -> State:
+    """One classical RK4 step of length h [s] from (t, y) with the command u [V] held; pressures projected."""
+    k1 = derivatives(c, e, y, u, t, clock)[0]
+    k2 = derivatives(c, e, _shifted(y, 0.5 * h, k1), u, t + 0.5 * h, clock)[0]
+    k3 = derivatives(c, e, _shifted(y, 0.5 * h, k2), u, t + 0.5 * h, clock)[0]
+    k4 = derivatives(c, e, _shifted(y, h, k3), u, t + h, clock)[0]
+    g = h / 6.0
+    step = (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0], k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1],
+            k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2], k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3],
+            k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4], k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5],
+            k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6], k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7],
+            k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8])
+    y_new = _shifted(y, g, step)
+    ps = max(y_new[PS], 0.0)
+    pl = min(max(y_new[PL], -ps), ps)
+    return (y_new[0], y_new[1], ps, pl, y_new[4], y_new[5], y_new[6], y_new[7], y_new[8])
 
 
 @njit(cache=True, error_model="numpy")
-def _rk4_segment(c, e, y, u, t, length, h_max, clock, work, sens):  # noqa: ANN001
-    """Integrate y over ``length`` seconds from t with the command u held; y is updated in place.
+def _rk4_step_outlined(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: float,
+                       clock: bool) -> State:
+    """:func:`_rk4_step` as a called function, for the rare kink bisection (small compiled code)."""
+    return _rk4_step(c, e, y, u, t, h, clock)
+
+
+@njit(cache=True, error_model="numpy")
+def _step_past_kink(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: float, clock: bool,
+                    code: int) -> tuple[float, State]:
+    """Where a step of length h [s] from (t, y) leaves region ``code``: bisection to 2**-12 of h.
+
+    Returns the length stepped [s] and the state just past the kink.
+    """
+    lo, hi = 0.0, 1.0
+    for _ in range(_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        if _region(c, e, _rk4_step_outlined(c, e, y, u, t, mid * h, clock)) == code:
+            lo = mid
+        else:
+            hi = mid
+    return hi * h, _rk4_step_outlined(c, e, y, u, t, hi * h, clock)
+
+
+@njit(cache=True, error_model="numpy")
+def _rk4_segment(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, length: float, h_max: float,
+                 clock: bool) -> State:
+    """Integrate y over ``length`` seconds from t with the command u held; returns the new state.
 
     A step that leaves the smooth piece it started in (a kink of the right-hand side: relief valve
     cracking, spool through zero, stops, backlash contact) is split where it crosses, found by
     bisection to 2**-12 of a step (at most 4 splits per step), so RK4 keeps its order across kinks.
     """
-    k1, k2, k3, k4, tmp, y_new = work[0], work[1], work[2], work[3], work[4], work[5]
     n_steps = max(1, int(math.ceil(length / h_max - 1e-9)))
     h = length / n_steps
     code = _region(c, e, y)
@@ -131,28 +168,25 @@ def _rk4_segment(c, e, y, u, t, length, h_max, clock, work, sens):  # noqa: ANN0
         tj = t + j * h
         left = h
         for split in range(_SPLITS):
-            _rk4_step(c, e, y, u, tj, left, clock, k1, k2, k3, k4, tmp, sens, y_new)
+            y_new = _rk4_step(c, e, y, u, tj, left, clock)
             new_code = _region(c, e, y_new)
             if split == _SPLITS - 1 or new_code == code:
                 break
-            lo, hi = 0.0, 1.0
-            for _ in range(_BISECTIONS):
-                mid = 0.5 * (lo + hi)
-                _rk4_step(c, e, y, u, tj, mid * left, clock, k1, k2, k3, k4, tmp, sens, y_new)
-                if _region(c, e, y_new) == code:
-                    lo = mid
-                else:
-                    hi = mid
-            _rk4_step(c, e, y, u, tj, hi * left, clock, k1, k2, k3, k4, tmp, sens, y)
+            done, y = _step_past_kink(c, e, y, u, tj, left, clock, code)
             code = _region(c, e, y)
-            tj += hi * left
-            left -= hi * left
+            tj += done
+            left -= done
         code = new_code
-        for i in range(N_ODE):
-            y[i] = y_new[i]
+        y = y_new
+    return y
 
 
 @njit(cache=True, error_model="numpy")
+def _sensors(c: np.ndarray, e: np.ndarray, y: State, t: float, clock: bool) -> tuple[float, float, float]:
+    """Raw flow [L/min], speed [rad/s] and torque [N·m] of state y (Eq. 8)."""
+    return derivatives(c, e, y, 0.0, t, clock)[1]
+
+
 def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command: np.ndarray,
             noise: np.ndarray, out: np.ndarray, fs: float, t0: float, substeps: int, clock: bool) -> None:
     """Advance M machines by n samples each; ``state`` is updated in place.
@@ -179,24 +213,32 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
         RK4 steps per sample interval (h = 1 / (fs · substeps)).
     clock : bool
         False: settle mode, the sample counter and the oil temperature do not advance.
+
+    Notes
+    -----
+    The compiled loop releases the GIL. A read-only command (a broadcast view) is copied first,
+    so every caller shares one compiled specialisation instead of compiling a second one.
     """
+    if not command.flags.writeable:
+        command = command.copy()
+    _advance_compiled(params, effects, state, command, noise, out, float(fs), float(t0), int(substeps), bool(clock))
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _advance_compiled(params, effects, state, command, noise, out, fs, t0, substeps, clock):  # noqa: ANN001
+    """:func:`advance`, compiled (same arguments)."""
     n_machines, n_samples = command.shape
     ring = state.shape[1] - RING
     h_max = 1.0 / (fs * substeps)
     dt = 1.0 / fs
     noisy = noise.shape[0] > 0
-    y = np.empty(N_ODE)
-    work = np.empty((6, N_ODE))
-    k1 = work[0]
-    sens = np.empty(3)
     coef = np.empty(N_COEF + N_LOAD)
     for m in range(n_machines):
         p = params[m]
         coefficients(p, coef)
         e = effects[m]
         s = state[m]
-        for i in range(N_ODE):
-            y[i] = s[i]
+        y = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8])
         hysteresis = e[_HYSTERESIS] > 0.5
         delay = e[_DELAY] > 0.5
         lag = 0
@@ -211,11 +253,10 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
         for k in range(n_samples):
             t = t0 + s[COUNT] / fs
             # 1. sensors at t_k
-            rates(coef, e, y, 0.0, t, clock, k1, sens)
-            if lowpass >= 0:
-                sens[lowpass] = y[YF]
+            sens = _sensors(coef, e, y, t, clock)
             for c in range(3):
-                out[m, k, c] = sens[c] + (p[_NOISE + c] * noise[m, k, c] if noisy else 0.0)
+                value = y[YF] if c == lowpass else sens[c]
+                out[m, k, c] = value + (p[_NOISE + c] * noise[m, k, c] if noisy else 0.0)
             out[m, k, 3] = max(y[PS], 0.0) / 1e5
             out[m, k, 4] = y[PL] / 1e5
             out[m, k, 5] = y[TEMP] if e[_THERMAL] > 0.5 else _T_NOMINAL
@@ -233,12 +274,12 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
                 u_now = s[RING + (w - lag) % ring]
                 if frac > 0.0:
                     u_before = s[RING + (w - lag - 1) % ring]
-                    _rk4_segment(coef, e, y, u_before, t, frac * dt, h_max, clock, work, sens)
-                    _rk4_segment(coef, e, y, u_now, t + frac * dt, (1.0 - frac) * dt, h_max, clock, work, sens)
+                    y = _rk4_segment(coef, e, y, u_before, t, frac * dt, h_max, clock)
+                    y = _rk4_segment(coef, e, y, u_now, t + frac * dt, (1.0 - frac) * dt, h_max, clock)
                 else:
-                    _rk4_segment(coef, e, y, u_now, t, dt, h_max, clock, work, sens)
+                    y = _rk4_segment(coef, e, y, u_now, t, dt, h_max, clock)
             else:
-                _rk4_segment(coef, e, y, u, t, dt, h_max, clock, work, sens)
+                y = _rk4_segment(coef, e, y, u, t, dt, h_max, clock)
             if clock:
                 s[COUNT] += 1.0
         for i in range(N_ODE):
