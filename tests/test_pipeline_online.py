@@ -1,4 +1,4 @@
-"""Streaming scoring: batch/stream parity, gaps and NaN as invalid windows, the scorer service over loopback."""
+"""Streaming scoring: batch/stream parity (pooled or not), gaps and NaN as invalid windows, the scorer service."""
 
 from __future__ import annotations
 
@@ -6,14 +6,20 @@ import signal
 import subprocess
 import sys
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from hydrowatch.condition import parity, supply, windows_from_recording
+from hydrowatch.condition.stream import ConditionStream, judge_streams
+from hydrowatch.errors import ParameterError
 from hydrowatch.health.plan import DataPlan
+from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant.fleet import simulate_states
-from hydrowatch.training.online import Chunk, OnlineScorer
+from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.training.online import Chunk, OnlineScorer, chunks_from_batches
 from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.reference import SensorReference
 from hydrowatch.training.scoring import score_recording
@@ -22,6 +28,7 @@ from hydrowatch.training.trainer import train
 STATES = ["healthy", "load_alert", "pump_leak_alert"]
 PLAN = DataPlan(reference_samples=2000, base_samples=2000, classifier_windows=12, window=1000, hop=500)
 COLUMNS = ("voltage", "flow", "speed", "torque")
+RAW = (*COLUMNS, "temperature")
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +42,20 @@ def bundle_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def test_recordings() -> list:
     return list(simulate_states(STATES, seconds=20, seed=5))
+
+
+@pytest.fixture(scope="module")
+def parity_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    plan = DataPlan(reference_samples=2000, base_samples=2000, classifier_windows=12, window=1000, hop=1000)
+    grouped = {r.state: [r] for r in simulate_states(STATES, seconds=plan.samples_per_state / 200 + 1, seed=0)}
+    result = train(grouped, TrainingSettings(method="parity", plan=plan))
+    return result.bundle.save(tmp_path_factory.mktemp("parity") / "model")
+
+
+@pytest.fixture(scope="module")
+def fleet() -> list:
+    """Six machines, 40 s each (8 windows): each health state twice, other seeds."""
+    return list(simulate_states(STATES, seconds=40, seed=6)) + list(simulate_states(STATES, seconds=40, seed=7))
 
 
 def chunks(recording, machine: str, start: int, stop: int) -> Chunk:
@@ -108,8 +129,9 @@ def test_gap_nan_and_out_of_order_invalidate_the_window(bundle_dir: Path, test_r
 
 
 def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], samples: int,
-                      want: int) -> tuple[int, dict[str, list], object]:
-    """Start the scorer service on ``model``, publish ``samples`` of each recording as 0.5 s chunks.
+                      want: int, extra: tuple[str, ...] = ()) -> tuple[int, dict[str, list], object]:
+    """Start the scorer service on ``model`` (more arguments: ``extra``), publish ``samples`` of each recording as
+    0.5 s chunks.
 
     Returns the exit code, the health rows per machine (until ``want`` rows) and the first kl message.
     """
@@ -119,7 +141,7 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
 
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "services.scorer", "--model", str(model), "--fleet", "t",
-                             "--bus-port", str(port)])
+                             "--bus-port", str(port), *extra])
     got: dict[str, list] = {}
     try:
         with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
@@ -150,3 +172,165 @@ def test_scorer_service_over_loopback(bundle_dir: Path, test_recordings: list) -
         assert rows[0]["window_end"] - rows[0]["window_start"] == pytest.approx(5.0)
         assert rows[0]["model_version"].startswith("sha256:")
     assert first_kl is not None and first_kl.batch.num_rows == 3 * len(STATES)
+
+
+def feed_fleet(scorer: OnlineScorer, recordings: list, stagger: int = 0) -> list:
+    """Every machine's chunks as record batches (chunks_from_batches), of 7, 20 or 33 samples by machine and step;
+    machine i joins ``i * stagger`` samples of updates late, so windows close in different updates."""
+    sizes = [7, 20, 33]
+    pos = [-i * stagger for i in range(len(recordings))]
+    out = []
+    for k in range(10_000):
+        names, batches = [], []
+        for i, r in enumerate(recordings):
+            n = sizes[(i + k) % 3]
+            a, b = max(pos[i], 0), min(pos[i] + n, len(r))
+            pos[i] += n
+            if b > a:
+                names.append(f"m{i}")
+                batches.append(sensor_chunk_from_arrays(r.t[a:b], {c: r[c][a:b] for c in RAW}))
+        if not batches:
+            return out
+        out += scorer.update(chunks_from_batches(names, batches, scorer.columns))
+    raise AssertionError("the recordings never ended")
+
+
+@pytest.mark.parametrize("smoothing, batch, stagger, phased", [(1, 64, 0, False), (3, 2, 130, False),
+                                                                (2, 64, 0, True)])
+def test_parity_fleet_stream_equals_batch_pooled_or_not(parity_dir: Path, fleet: list, smoothing: int, batch: int,
+                                                       stagger: int, phased: bool) -> None:
+    from hydrowatch.training.bundle import ModelBundle
+
+    bundle = ModelBundle.load(parity_dir)
+    model = bundle.condition
+    assert model is not None
+    scorer = OnlineScorer(bundle, smoothing=smoothing, batch=batch, stagger=phased)
+    got = feed_fleet(scorer, fleet, stagger)
+    assert scorer.samples == sum(len(r) for r in fleet)
+    phases = set()
+    for i, r in enumerate(fleet):
+        phase = zlib.crc32(f"m{i}".encode()) % bundle.hop if phased else 0  # the scorer's own window phase
+        phases.add(phase)
+        raw = windows_from_recording(r.slice(phase, len(r)), bundle.window, bundle.hop, temperature=True)
+        verdicts, band = model.judge_with_scores(raw, smoothing)
+        online = [v for v in got if v.machine == f"m{i}"]
+        assert len(online) == len(verdicts) == (len(r) - phase) // bundle.window >= 7
+        for k, (a, b) in enumerate(zip(online, verdicts)):
+            assert a.start_s == pytest.approx(float(r.t[phase + k * bundle.window]), abs=1e-9)
+            assert a.end_s - a.start_s == pytest.approx(5.0)
+            assert a.verdict.state == b.state and a.verdict.novelty == pytest.approx(b.novelty, rel=1e-12)
+            assert a.verdict.probabilities == pytest.approx(b.probabilities, rel=1e-12, abs=1e-15)
+            np.testing.assert_allclose(a.scores.reshape(-1), band[k], rtol=1e-12)
+        assert sum(v.verdict.state == r.state for v in online) >= len(online) - 1
+    assert len(phases) == (len(fleet) if phased else 1)
+
+
+def test_pooled_history_survives_a_break_and_the_window_is_invalid(parity_dir: Path, fleet: list) -> None:
+    from hydrowatch.training.bundle import ModelBundle
+
+    bundle = ModelBundle.load(parity_dir)
+    r = fleet[1]
+    scorer = OnlineScorer(bundle, smoothing=4)
+    flow = r["flow"].copy()
+    flow[2500] = np.nan
+    out = []
+    for a in range(0, 5000, 100):
+        channels = {**{c: r[c][a:a + 100] for c in RAW}, "flow": flow[a:a + 100]}
+        out += scorer.update([Chunk("m", r.t[a:a + 100], channels)])
+    assert [v.verdict.state for v in out] == [r.state, r.state, "invalid", r.state, r.state]
+    assert out[2].verdict.reason == f"NaN in flow at t={r.t[2500]:.3f} s" and out[2].start_s == pytest.approx(r.t[2000])
+    assert out[3].start_s == pytest.approx(r.t[2501])  # the stream restarts after the NaN sample
+    stream = ConditionStream(bundle.condition, n_windows=4)  # the last verdict pools all four valid windows
+    for a in (0, 1000, 2501, 3501):
+        stream.update(np.stack([r[c][a:a + 1000] for c in RAW], axis=1))
+    assert out[-1].verdict.probabilities == pytest.approx(stream.get().probabilities, rel=1e-12)
+
+
+def test_judge_streams_equals_each_streams_get(parity_dir: Path, fleet: list) -> None:
+    from hydrowatch.training.bundle import ModelBundle
+
+    model = ModelBundle.load(parity_dir).condition
+    assert model is not None
+    streams = [ConditionStream(model, n_windows=n) for n in (3, 3, 1)]
+    for s, r in zip(streams, fleet):
+        for w in windows_from_recording(r, 1000, 1000, temperature=True)[:4]:
+            s.update(w)
+    for n, group in ((3, streams[:2]), (1, streams[2:])):
+        evidence = [s.evidence() for s in group]
+        batched = judge_streams(model, n, [e for e in evidence if e is not None])
+        for s, v in zip(group, batched):
+            assert v == s.get()
+
+
+def test_smoothing_is_checked_and_scores_pool(bundle_dir: Path, parity_dir: Path, fleet: list) -> None:
+    from hydrowatch.training.bundle import ModelBundle
+
+    entropy = ModelBundle.load(bundle_dir)
+    with pytest.raises(ParameterError, match="smoothing must be 1 for an entropy bundle"):
+        OnlineScorer(entropy, smoothing=3)
+    with pytest.raises(ParameterError, match="smoothing must be an integer >= 1"):
+        score_recording(entropy, fleet[0], smoothing=2)
+    bundle = ModelBundle.load(parity_dir)
+    with pytest.raises(ParameterError, match="smoothing must be an integer >= 1"):
+        OnlineScorer(bundle, smoothing=0)
+    r = fleet[2]
+    pooled = score_recording(bundle, r, smoothing=4)["windows"]
+    assert bundle.condition is not None
+    batch = bundle.condition.judge(windows_from_recording(r, 1000, 1000, temperature=True), 4)
+    assert [w["state"] for w in pooled] == [v.state for v in batch] and pooled[3]["probabilities"] == \
+        pytest.approx(batch[3].probabilities)
+
+
+def test_spool_filter_cache_and_compiled_kernel_equal_the_direct_computation() -> None:
+    """Speed-only changes: the cached spool filter and the kernels' numpy error model change no result."""
+    from scipy.signal import cont2discrete, lfilter, lfilter_zi
+
+    p = PlantParameters()
+    rng = np.random.default_rng(1)
+    u = np.clip(2.0 + np.cumsum(rng.normal(0, 0.05, (3, 401)), axis=1), 0, 4)
+    wv, zv = p.omega_v, p.zeta_v
+    ad, bd, *_ = cont2discrete((np.array([[0.0, 1.0], [-wv * wv, -2 * zv * wv]]), np.array([[0.0], [wv * wv]]),
+                                np.array([[1.0, 0.0]]), np.zeros((1, 1))), 1 / 200, "zoh")
+    den = np.array([1.0, -np.trace(ad), np.linalg.det(ad)])
+    num = np.array([0.0, bd[0, 0], (ad @ bd[:, 0])[0] - np.trace(ad) * bd[0, 0]])
+    x = u * p.Kc / p.u_max
+    direct = lfilter(num, den, x, axis=-1, zi=lfilter_zi(num, den)[None, :] * x[:, :1])[0]
+    spool = parity.spool_position(u, p)
+    np.testing.assert_allclose(spool, direct, rtol=1e-12, atol=1e-15)
+    # the compiled valve fit against its own Python source (Python's error model) on short windows
+    pl = 40e5 + 5e5 * np.sin(np.linspace(0, 6, 401))[None] * np.ones((3, 1))
+    g = np.ascontiguousarray(p.Kq * spool)
+    q = np.ascontiguousarray(supply.M3S_TO_LPM ** -1 * 0.9 * g * np.sqrt(np.maximum(100e5 - pl, 0.0)))
+    f, base = np.ones(3), supply.constants(p, 200.0)
+    outputs = []
+    for compiled in (True, False):
+        names = ("_valve_flow", "_equilibrium", "_step", "_sweep")
+        saved = {k: getattr(supply, k) for k in names}
+        try:
+            if not compiled:
+                for k in names:
+                    setattr(supply, k, saved[k].py_func)
+            fit = supply.fit_windows if compiled else supply.fit_windows.py_func
+            s, mse, curv = np.empty(3), np.empty(3), np.empty(3)
+            fit(0, -0.05, 3.0, 7, 4, g, np.ascontiguousarray(pl), q, f, base, 8, s, mse, curv)
+            outputs.append(np.concatenate([s, mse, curv]))
+        finally:
+            for k, v in saved.items():
+                setattr(supply, k, v)
+    np.testing.assert_allclose(outputs[0], outputs[1], rtol=1e-12, atol=1e-18)
+
+
+def test_scorer_service_publishes_pooled_verdicts(parity_dir: Path, fleet: list) -> None:
+    from hydrowatch.training.bundle import ModelBundle
+
+    model = ModelBundle.load(parity_dir).condition
+    assert model is not None
+    machines = fleet[:2]
+    code, got, _ = scorer_round_trip(parity_dir, machines, RAW, 3400, 6, ("--smoothing", "3"))
+    assert code == 0 and set(got) == {r.state for r in machines}
+    for r in machines:
+        rows = sorted(got[r.state], key=lambda row: row["window_start"])
+        expected = model.judge(windows_from_recording(r.slice(0, 3000), 1000, 1000, temperature=True), 3)
+        assert [row["state"] for row in rows] == [v.state for v in expected] == [r.state] * 3
+        for row, v in zip(rows, expected):  # the third verdict pools all three windows
+            assert row["probabilities"] == pytest.approx(v.probabilities, rel=1e-9)

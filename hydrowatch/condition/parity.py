@@ -35,6 +35,8 @@ the nominal parameters and the health-state scale hold.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
@@ -88,9 +90,23 @@ def spool_position(voltage: np.ndarray, p: PlantParameters, sample_rate: float =
     each sample interval (zero-order hold); sample k is read before u[k] acts, so x̂[k] depends on
     u[k−1], u[k−2], … Every window starts at rest at its first command.
     """
-    from scipy.signal import cont2discrete, lfilter, lfilter_zi
+    from scipy.signal import lfilter
 
-    wv, zv = p.omega_v, p.zeta_v
+    num, den, zi = (np.array(c) for c in _spool_filter(p.omega_v, p.zeta_v, sample_rate))
+    u = np.atleast_2d(np.asarray(voltage, dtype=np.float64)) * (p.Kc / p.u_max)
+    x = lfilter(num, den, u, axis=-1, zi=zi[None, :] * u[:, :1])[0]
+    return x.reshape(np.shape(voltage))
+
+
+@functools.lru_cache(maxsize=16)
+def _spool_filter(wv: float, zv: float, sample_rate: float) -> tuple[tuple[float, ...], ...]:
+    """Numerator, denominator and rest state under a unit command of :func:`spool_position`'s filter.
+
+    Discretising (a matrix exponential) costs ~1 ms, more than filtering a few windows: a scorer
+    judging windows as they close calls this with the same spool on every batch, hence the cache.
+    """
+    from scipy.signal import cont2discrete, lfilter_zi
+
     a = np.array([[0.0, 1.0], [-wv * wv, -2.0 * zv * wv]])
     b = np.array([[0.0], [wv * wv]])
     ad, bd, _, _, _ = cont2discrete((a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), 1.0 / sample_rate, "zoh")
@@ -98,10 +114,8 @@ def spool_position(voltage: np.ndarray, p: PlantParameters, sample_rate: float =
     den = np.array([1.0, -np.trace(ad), np.linalg.det(ad)])
     c = np.array([1.0, 0.0])
     num = np.array([0.0, c @ bd[:, 0], c @ (ad @ bd[:, 0]) - np.trace(ad) * (c @ bd[:, 0])])
-    u = np.atleast_2d(np.asarray(voltage, dtype=np.float64)) * (p.Kc / p.u_max)
     zi = lfilter_zi(num, den)  # the filter's state at rest under a unit command
-    x = lfilter(num, den, u, axis=-1, zi=zi[None, :] * u[:, :1])[0]
-    return x.reshape(np.shape(voltage))
+    return tuple(num.tolist()), tuple(den.tolist()), tuple(zi.tolist())
 
 
 def load_pressure(speed: np.ndarray, torque: np.ndarray, p: PlantParameters,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from hydrowatch.condition.evidence import EvidenceSmoother
@@ -44,13 +46,42 @@ class ConditionStream:
         """Add one window's ``transform_evidence`` row (NaN: invalid, skipped). Returns nothing."""
         self._smoother.update(features)
 
-    def get(self) -> Verdict | None:
-        """The verdict of the pooled windows, or None before the first valid window."""
+    def evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What :meth:`get` judges, each shape (n_ratios,): the decision's and the open set's pooled scores and
+        the last valid window's own ratios (all three that row when ``n_windows`` is 1); None before any.
+
+        A scorer of many machines stacks these rows and judges them in one call (:func:`judge_streams`).
+        """
         pooled = self._smoother.get()
         latest = self._smoother.latest()
         if pooled is None or latest is None:
             return None
-        current = latest[None, : pooled[0].size]
+        current = latest[: pooled[0].size]
         if self.n_windows == 1:
-            return self.model.judge_evidence(current, current)[0]
-        return self.model.judge_pooled(pooled[0][None], pooled[1][None], current)[0]
+            return current, current, current
+        return pooled[0], pooled[1], current
+
+    def get(self) -> Verdict | None:
+        """The verdict of the pooled windows, or None before the first valid window."""
+        evidence = self.evidence()
+        return None if evidence is None else judge_streams(self.model, self.n_windows, [evidence])[0]
+
+
+def judge_streams(model: ConditionModel, n_windows: int,
+                  evidence: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  reasons: Sequence[str | None] | None = None) -> list[Verdict]:
+    """Verdicts of many streams' :meth:`ConditionStream.evidence` rows in one call (same as each stream's ``get``).
+
+    Parameters
+    ----------
+    n_windows : int
+        The streams' ``n_windows`` (1: each row judged alone).
+    evidence : sequence of (decision, open_set, current), each shape (n_ratios,)
+        NaN rows are invalid windows.
+    reasons : sequence of str or None, optional
+        Why a window is invalid (its verdict then says so).
+    """
+    decision, open_set, current = (np.stack([e[i] for e in evidence]) for i in range(3))
+    if n_windows == 1:
+        return model.judge_evidence(current, current, reasons)
+    return model.judge_pooled(decision, open_set, current, reasons)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import windows_from_recording
+from hydrowatch.errors import ParameterError
 from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 from hydrowatch.training.bundle import ModelBundle
@@ -45,8 +46,12 @@ def window_truth(recording: Recording, starts: np.ndarray, window: int, trained:
     return out
 
 
-def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]:
+def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 1) -> dict[str, Any]:
     """The contract's object for one recording: ``source``, ``windows``, ``summary``.
+
+    ``smoothing`` (parity bundles): valid windows whose evidence each verdict pools, the window
+    itself and the ones before it (:meth:`ConditionModel.judge`; 1: each window alone, as the
+    scorer service's ``--smoothing``). Entropy bundles take only 1.
 
     ``windows[i]`` has ``start_s`` (time of its first sample, s), ``state``, ``probability``,
     ``probabilities`` (state → p), ``kl`` (sensor → state → relative entropy, nats) and, for
@@ -54,6 +59,9 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
     ``summary`` has ``windows``, ``counts`` (state → n), ``accuracy`` (None when unlabelled),
     ``model_version``.
     """
+    if int(smoothing) != smoothing or smoothing < 1 or (smoothing > 1 and bundle.condition is None):
+        raise ParameterError(f"smoothing must be an integer >= 1, and 1 for an entropy bundle. Got {smoothing!r} "
+                             f"({bundle.method} bundle); pooling windows is the parity method's.")
     window = bundle.window
     warmup = bundle.warmup
     t = recording.t
@@ -67,7 +75,7 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
         })
         truths: list[str | None] = [None]
     else:
-        starts, verdicts, kl = _window_scores(bundle, recording)
+        starts, verdicts, kl = _window_scores(bundle, recording, smoothing)
         truths = window_truth(recording, starts + warmup, window, bundle.states)
         for i, (start, verdict) in enumerate(zip(starts.tolist(), verdicts)):
             item: dict[str, Any] = {"start_s": float(t[start + warmup]), **verdict.to_dict()}
@@ -90,14 +98,15 @@ def score_recording(bundle: ModelBundle, recording: Recording) -> dict[str, Any]
     }
 
 
-def _window_scores(bundle: ModelBundle, recording: Recording) -> tuple[np.ndarray, list[Verdict], np.ndarray]:
+def _window_scores(bundle: ModelBundle, recording: Recording,
+                   smoothing: int = 1) -> tuple[np.ndarray, list[Verdict], np.ndarray]:
     """Window starts (after the warm-up), verdicts and ``kl`` scores, shape (n_windows, n_rows, n_states)."""
     if bundle.condition is not None:
         model = bundle.condition
         temperature = bool(bundle.manifest.get("temperature")) and "temperature" in recording.channels
         raw = windows_from_recording(recording, bundle.window, bundle.hop, temperature=temperature)
-        starts, verdicts = model.score(raw, len(recording))
-        scores = model.features_.transform(raw)
+        verdicts, scores = model.judge_with_scores(raw, smoothing)  # one pass for verdicts and kl scores
+        starts = model.features_.window_starts(len(recording))
         return starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states))
     health = bundle.health
     assert health is not None

@@ -1,9 +1,11 @@
 """Scorer service: sensor chunks in, relative entropies and verdicts out, one window at a time.
 
 Subscribes to ``hydro/<fleet>/*/sensors`` (``--shard i/n``: only that shard's machines), keeps each
-machine's delay lines and window (:class:`hydrowatch.training.online.OnlineScorer`), predicts one
-step ahead per sensor batched across machines, and publishes ``hydro/<fleet>/<machine>/kl`` and
-``…/health`` for every window that closes. Gaps, NaN, late or out-of-order chunks make the
+machine's window (:class:`hydrowatch.training.online.OnlineScorer`: parity bundles a row of raw
+samples and, with ``--smoothing N``, the evidence of its last N windows; entropy bundles the
+reference models' delay lines), batched across machines, and publishes
+``hydro/<fleet>/<machine>/kl`` and ``…/health`` (the pooled verdict) for every window that
+closes. Gaps, NaN, late or out-of-order chunks make the
 window in progress ``invalid`` with its reason. The model comes from a bundle folder or the MLflow
 registry (``models:/NAME@ALIAS``); with ``--follow-alias S`` the alias is checked every S seconds
 and the scorer switches (fresh windows) when it moves. SIGINT/SIGTERM drains and exits.
@@ -36,7 +38,7 @@ from hydrowatch.log import event, get_logger
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
     from hydrowatch.bus import Message
     from hydrowatch.training.bundle import ModelBundle
-    from hydrowatch.training.online import Chunk, WindowVerdict
+    from hydrowatch.training.online import ChunkBatch, WindowVerdict
 
 NAME = "scorer"
 HELP = "score sensor chunks online: publish relative entropies (…/kl) and verdicts (…/health) per window"
@@ -53,6 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fleet", default="*", help="fleet to score (default: every fleet)")
     parser.add_argument("--shard", type=parse_shard, default=Shard(), help="score only shard i/n of the machines")
     parser.add_argument("--tick", type=float, default=0.05, help="seconds of chunks gathered per batch (default 0.05)")
+    parser.add_argument("--smoothing", type=int, default=1, metavar="N",
+                        help="parity bundles: each verdict pools the machine's last N valid windows (default 1: "
+                             "each window alone; 6 settles 13-state duty cycles, 12 the open set; delay ~N/2 windows)")
+    parser.add_argument("--stagger", action="store_true",
+                        help="parity bundles: start each machine's windows at a phase of its own (from its name), so a "
+                             "fleet started together does not close every window at once (costs up to one window of "
+                             "samples after each (re)start)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
@@ -100,7 +109,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     from hydrowatch.training.online import OnlineScorer
 
     model = _Model(args)
-    scorer = OnlineScorer(model.bundle)
+    scorer = OnlineScorer(model.bundle, smoothing=args.smoothing, stagger=args.stagger)
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     counters = {"verdicts": 0}
     with open_session(settings_from_args(args)) as session:
@@ -116,7 +125,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
                 chunks = _gather(subscriber, args.tick, scorer.columns)
                 if model.moved():
-                    scorer = OnlineScorer(model.bundle)
+                    # an entropy bundle cannot pool windows: its verdicts are per window
+                    parity = model.bundle.method == "parity"
+                    scorer = OnlineScorer(model.bundle, smoothing=args.smoothing if parity else 1,
+                                          stagger=args.stagger)
                 if chunks:
                     verdicts = scorer.update(chunks)
                     _publish(publisher, model.bundle, verdicts)
@@ -135,18 +147,18 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     return 0
 
 
-def _chunks(messages: list[Message], columns: Sequence[str]) -> list[Chunk]:
+def _chunks(messages: list[Message], columns: Sequence[str]) -> ChunkBatch:
     from hydrowatch.training.online import chunks_from_batches
 
     return chunks_from_batches([f"{m.key.fleet}/{m.key.machine}" for m in messages], [m.batch for m in messages],
                                columns)
 
 
-def _gather(subscriber: Subscriber, tick: float, columns: Sequence[str]) -> list[Chunk]:
+def _gather(subscriber: Subscriber, tick: float, columns: Sequence[str]) -> ChunkBatch | None:
     """Chunks received within ``tick`` seconds of the first one (at most 0.1 s waiting for it)."""
     first = subscriber.recv(timeout=0.1)
     if first is None:
-        return []
+        return None
     messages = [first]
     end = time.monotonic() + tick
     while (left := end - time.monotonic()) > 0:

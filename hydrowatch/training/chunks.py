@@ -1,0 +1,218 @@
+"""Chunks of sensor samples as the scorer receives them, and how a machine's stream is cut into clean segments.
+
+:func:`chunks_from_batches` turns the ``sensor_chunk`` record batches of one scorer tick into a
+:class:`ChunkBatch` (flat arrays, one Arrow → NumPy conversion per column); :func:`plan_chunk`
+cuts one machine's chunk into :class:`Segment` s and the :class:`Break` s between them (a gap, a
+late or out-of-order chunk, NaN, irregular spacing), which make the window in progress ``invalid``.
+:class:`WindowVerdict` is what the scorer makes of a window.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from hydrowatch.health.verdict import Verdict
+from hydrowatch.recording import SAMPLE_RATE_HZ
+
+DT = 1.0 / SAMPLE_RATE_HZ
+TOLERANCE = 0.5 * DT
+"""Largest deviation of a sample time from where it is expected, s."""
+
+
+@dataclass
+class Chunk:
+    """One received ``sensor_chunk`` of one machine.
+
+    Attributes
+    ----------
+    machine : str
+        ``<fleet>/<machine>`` or any id unique within the scorer.
+    t : ndarray, shape (n,)
+        Sample times, s.
+    channels : mapping of str to ndarray, shape (n,)
+        At least ``voltage`` [V] and the bundle's sensors (and ``temperature`` [°C] when a parity
+        bundle uses it; 40 °C is assumed when missing).
+    """
+
+    machine: str
+    t: np.ndarray
+    channels: Mapping[str, np.ndarray]
+
+
+class ChunkBatch(Sequence[Chunk]):
+    """Chunks of many machines held as flat arrays (what :func:`chunks_from_batches` returns).
+
+    Indexing gives :class:`Chunk` views; the parity scorer reads the flat arrays directly.
+
+    Attributes
+    ----------
+    machines : list of str, length m
+    offsets : ndarray of int, shape (m + 1,)
+        Chunk i holds samples ``offsets[i]:offsets[i + 1]``.
+    t : ndarray, shape (n,)
+        Sample times of every chunk, one after another, s.
+    channels : dict of str to ndarray, shape (n,)
+        The columns read (NaN where a batch lacks the column: see ``absent``).
+    absent : dict of str to ndarray of bool, shape (m,)
+        For each column, the chunks that lack it.
+    """
+
+    def __init__(self, machines: list[str], offsets: np.ndarray, t: np.ndarray, channels: dict[str, np.ndarray],
+                 absent: dict[str, np.ndarray]) -> None:
+        self.machines, self.offsets, self.t, self.channels, self.absent = machines, offsets, t, channels, absent
+
+    def __len__(self) -> int:
+        return len(self.machines)
+
+    def __iter__(self) -> Iterator[Chunk]:
+        return (self[i] for i in range(len(self)))
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"chunk index must be in [-{len(self)}, {len(self)}). Got {i}.")
+        i = i % len(self)
+        a, b = int(self.offsets[i]), int(self.offsets[i + 1])
+        return Chunk(self.machines[i], self.t[a:b], {c: x[a:b] for c, x in self.channels.items()
+                                                      if not self.absent[c][i]})
+
+    @classmethod
+    def from_chunks(cls, chunks: Sequence[Chunk], columns: Sequence[str]) -> ChunkBatch:
+        """The flat form of any chunks (one concatenation per column)."""
+        if isinstance(chunks, ChunkBatch):
+            return chunks
+        lengths = [len(c.t) for c in chunks]
+        offsets = np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).astype(np.int64)
+        nan = [np.full(n, np.nan) for n in lengths]
+        t = np.concatenate([np.asarray(c.t, dtype=np.float64) for c in chunks]) if chunks else np.empty(0)
+        channels = {k: np.concatenate([np.asarray(c.channels.get(k, v), dtype=np.float64) for c, v in zip(chunks, nan)])
+                    if chunks else np.empty(0) for k in columns}
+        absent = {k: np.array([k not in c.channels for c in chunks], dtype=bool) for k in columns}
+        return cls([c.machine for c in chunks], offsets, t, channels, absent)
+
+
+def chunks_from_batches(machines: Sequence[str], batches: Sequence[pa.RecordBatch],
+                        columns: Sequence[str]) -> ChunkBatch:
+    """The chunks of ``sensor_chunk`` batches with only ``columns`` read (float64; nulls become NaN).
+
+    Batches with the same schema (nearly always all of them) are converted together: one table of
+    all of them and one Arrow → NumPy conversion per column (16× cheaper than concatenating the
+    arrays batch by batch at 1000 chunks). Batches of other schemas are converted per schema and
+    the result concatenated in arrival order. Columns a batch lacks are marked ``absent`` (the
+    scorer then uses its default or breaks the stream); the label column is never read.
+    """
+    if not batches:
+        return ChunkBatch([], np.zeros(1, dtype=np.int64), np.empty(0), {c: np.empty(0) for c in columns},
+                          {c: np.zeros(0, dtype=bool) for c in columns})
+    schema = batches[0].schema
+    if any(b.schema != schema for b in batches[1:]):
+        groups: dict[pa.Schema, list[int]] = {}
+        for i, batch in enumerate(batches):
+            groups.setdefault(batch.schema, []).append(i)
+        out: list[Chunk | None] = [None] * len(batches)
+        for members in groups.values():
+            part = chunks_from_batches([machines[i] for i in members], [batches[i] for i in members], columns)
+            for i, chunk in zip(members, part):
+                out[i] = chunk
+        return ChunkBatch.from_chunks([c for c in out if c is not None], columns)
+    table = pa.Table.from_batches(list(batches))
+    n = table.num_rows
+    offsets = np.zeros(len(batches) + 1, dtype=np.int64)
+    np.cumsum([b.num_rows for b in batches], out=offsets[1:])
+    have = set(schema.names)
+    channels = {c: table.column(c).to_numpy().astype(np.float64, copy=False) if c in have else np.full(n, np.nan)
+                for c in columns}
+    absent = {c: np.full(len(batches), c not in have) for c in columns}
+    return ChunkBatch(list(machines), offsets, table.column("t").to_numpy().astype(np.float64, copy=False),
+                      channels, absent)
+
+
+@dataclass
+class WindowVerdict:
+    """The verdict of one window of one machine.
+
+    Attributes
+    ----------
+    machine : str
+    start_s, end_s : float
+        Time of the window's first sample and just after its last, s (recording time base).
+    verdict : Verdict
+    scores : ndarray, shape (n_rows, n_states), or None
+        The window's ``kl`` scores (None for a window cut short by a break): relative entropies
+        per sensor, nats (entropy method), or relation scores per relation (parity method).
+    """
+
+    machine: str
+    start_s: float
+    end_s: float
+    verdict: Verdict
+    scores: np.ndarray | None = None
+
+
+@dataclass
+class Segment:
+    """Clean samples of one machine: regular, finite, following the previous ones."""
+
+    t: np.ndarray
+    x: np.ndarray
+    """Shape (n, n_columns): voltage then the sensors the method reads."""
+
+
+@dataclass
+class Break:
+    """Where a machine's stream breaks (the window in progress becomes ``invalid``) and why."""
+
+    reason: str
+    t: float
+
+
+def chunk_matrix(chunk: Chunk, columns: Sequence[str], defaults: Mapping[str, float]) -> np.ndarray:
+    """The chunk's columns side by side, shape (n, n_columns); a missing column is its default, else NaN."""
+    x = np.empty((len(chunk.t), len(columns)))
+    for j, c in enumerate(columns):
+        column = chunk.channels.get(c)
+        x[:, j] = (defaults[c] if c in defaults else np.nan) if column is None else column
+    return x
+
+
+def plan_chunk(t: np.ndarray, x: np.ndarray, columns: Sequence[str],
+               next_t: float | None) -> tuple[list[Segment | Break], float | None]:
+    """Cut one chunk (times ``t`` (n,), columns ``x`` (n, n_columns)) into clean segments and the breaks between them.
+
+    ``next_t`` is when the machine's next sample is expected (None: anything goes). Returns the
+    operations in time order and the new ``next_t``; a late chunk is dropped whole.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    ops: list[Segment | Break] = []
+    if t.size == 0:
+        return ops, next_t
+    if next_t is not None:
+        lag = t[0] - next_t
+        if lag < -TOLERANCE:
+            ops.append(Break(f"late or out-of-order chunk: t={t[0]:.3f} s arrived after t={next_t - DT:.3f} s",
+                             float(next_t)))
+            return ops, next_t  # the chunk is dropped: its samples belong to the past
+        if lag > TOLERANCE:
+            ops.append(Break(f"gap of {lag:.3f} s before t={t[0]:.3f} s", float(next_t)))
+    bad = ~np.all(np.isfinite(x), axis=1) | ~np.isfinite(t)
+    jumps = np.flatnonzero(np.abs(np.diff(t) - DT) > TOLERANCE) + 1
+    start = 0
+    for i in sorted({*np.flatnonzero(bad).tolist(), *jumps.tolist()}):
+        if i > start:
+            ops.append(Segment(t[start:i], x[start:i]))
+        if bad[i]:
+            names = [c for c, v in zip(columns, x[i]) if not np.isfinite(v)] or ["t"]
+            ops.append(Break(f"NaN in {', '.join(names)} at t={t[i]:.3f} s", float(t[i])))
+            start = i + 1
+        elif i >= start:
+            ops.append(Break(f"irregular sample spacing before t={t[i]:.3f} s", float(t[i])))
+            start = i
+    if start < t.size:
+        ops.append(Segment(t[start:], x[start:]))
+    return ops, float(t[-1] + DT) if np.isfinite(t[-1]) else next_t

@@ -1,0 +1,286 @@
+"""The parity method online for a whole fleet: one array row per machine, windows judged as they close.
+
+:class:`ParityStreams` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for a parity
+bundle. Per machine it keeps a row of one fleet-wide array of raw samples (the window in progress,
+``window × n_columns`` floats) and a few counters in fleet-wide vectors, so an update of 1000
+machines' clean chunks is a handful of NumPy operations, not 1000 Python objects:
+
+1. the chunks (a :class:`~hydrowatch.training.chunks.ChunkBatch`) are checked all at once: a
+   machine's only chunk in the update, every column present (or defaulted), finite, regular and
+   following its previous chunk is *clean* and written with one scatter per chunk length;
+2. anything else (a gap, NaN, a late chunk, several chunks of one machine) goes through
+   :func:`~hydrowatch.training.chunks.plan_chunk` machine by machine, as before: a break makes the
+   window in progress ``invalid`` with its reason and restarts the machine's window;
+3. windows that close are copied out and judged by the condition model in batches of at most
+   ``batch`` windows (one :meth:`ConditionFeatures.transform_evidence` call per batch): the verdict
+   from the window alone (``smoothing`` 1) or pooled over the machine's last ``smoothing`` valid
+   windows (one :class:`~hydrowatch.condition.stream.ConditionStream` per machine, judged for all
+   machines in one :func:`~hydrowatch.condition.stream.judge_streams` call). A break does not flush
+   the pooled evidence (as :class:`ConditionStream` skips invalid windows).
+
+With ``stagger`` each machine's windows start at a phase of its own after its stream (re)starts,
+so a fleet started in one instant does not close every window in the same update.
+
+Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydrowatch.condition.stream import ConditionStream, judge_streams
+from hydrowatch.errors import ParameterError
+from hydrowatch.health.verdict import INVALID, Verdict
+from hydrowatch.training.chunks import DT, TOLERANCE, Break, Chunk, ChunkBatch, WindowVerdict, plan_chunk
+from hydrowatch.training.engines import ParityEngine
+
+
+@dataclass
+class _Closed:
+    slot: int
+    start: int
+    """First sample of the window, counted from the stream's (re)start."""
+    t0: float
+    """Time of the stream's first sample, s."""
+    samples: np.ndarray
+
+
+class ParityStreams:
+    """Raw windows of many machines, judged by a parity bundle's condition model as they close (module docstring).
+
+    Parameters
+    ----------
+    engine : ParityEngine
+        The bundle's model, columns, defaults, window and hop.
+    shape : (int, int)
+        (n_relations, n_states) of each window's ``kl`` scores.
+    smoothing : int, default 1
+        Valid windows of a machine pooled in each verdict (1: each window alone).
+    batch : int, default 64
+        Most windows judged in one call.
+    stagger : bool, default False
+        Start each machine's windows ``phase`` samples after its stream (re)starts, ``phase`` in
+        [0, hop) fixed by the machine's name (CRC-32): machines started in the same instant then
+        close their windows spread over the hop instead of all in one update (the judging work of
+        the whole fleet at once), at the price of up to one hop of samples unjudged after each
+        (re)start. False: windows start at the stream's first sample (as batch scoring does).
+    """
+
+    def __init__(self, engine: ParityEngine, shape: tuple[int, int], *, smoothing: int = 1, batch: int = 64,
+                 stagger: bool = False) -> None:
+        if int(smoothing) != smoothing or smoothing < 1:
+            raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
+        if int(batch) != batch or batch < 1:
+            raise ParameterError(f"batch must be an integer >= 1. Got {batch!r}; 64 is the default.")
+        self.model, self.columns, self.defaults = engine.model, list(engine.columns), dict(engine.defaults)
+        self.window, self.hop, self.shape = engine.window, engine.hop, shape
+        self.smoothing, self.batch, self.stagger = int(smoothing), int(batch), bool(stagger)
+        self._slot: dict[str, int] = {}
+        self._names: list[str] = []
+        self._pools: list[ConditionStream | None] = []
+        self._buffer = np.empty((0, self.window, len(self.columns)))
+        self._fill = np.zeros(0, dtype=np.int64)
+        """Samples in each machine's window in progress."""
+        self._skip = np.zeros(0, dtype=np.int64)
+        """Samples to pass over before the next window starts (hop > window, or the phase after a (re)start)."""
+        self._phase = np.zeros(0, dtype=np.int64)
+        """Samples before each machine's first window after a (re)start (``stagger``)."""
+        self._fed = np.zeros(0, dtype=np.int64)
+        """Samples fed since the machine's stream (re)started."""
+        self._count = np.zeros(0, dtype=np.int64)
+        """Windows closed since the machine's stream (re)started."""
+        self._t0 = np.zeros(0)
+        """Time of the first sample since the stream (re)started, s (NaN: none yet)."""
+        self._next_t = np.zeros(0)
+        """When each machine's next sample is expected, s (NaN: anything goes)."""
+        self.samples = 0
+        """Samples fed so far, over every machine."""
+
+    @property
+    def machines(self) -> list[str]:
+        """Machines seen so far."""
+        return list(self._names)
+
+    # -- machines -----------------------------------------------------------------------------------
+    def _slots(self, machines: Sequence[str]) -> np.ndarray:
+        """Each machine's row (new machines get one; the arrays grow by doubling)."""
+        slot = self._slot
+        missing = set(machines).difference(slot)
+        for m in machines if missing else ():
+            if m in missing and m not in slot:
+                slot[m] = len(self._names)
+                self._names.append(m)
+                self._pools.append(None)
+        n = len(self._names)
+        if n > self._fill.size:
+            cap = n if self._fill.size == 0 else max(n, 2 * self._fill.size)
+            grow = cap - self._fill.size
+            self._buffer = np.concatenate([self._buffer, np.empty((grow, *self._buffer.shape[1:]))])
+            self._fill, self._skip, self._fed, self._count, self._phase = (
+                np.concatenate([a, np.zeros(grow, dtype=np.int64)])
+                for a in (self._fill, self._skip, self._fed, self._count, self._phase))
+            self._t0, self._next_t = (np.concatenate([a, np.full(grow, np.nan)]) for a in (self._t0, self._next_t))
+        if missing and self.stagger:
+            for s in range(n - len(missing), n):
+                self._phase[s] = self._skip[s] = zlib.crc32(self._names[s].encode()) % self.hop
+        return np.fromiter(map(slot.__getitem__, machines), dtype=np.int64, count=len(machines))
+
+    def _restart(self, slot: int) -> None:
+        self._fill[slot] = self._fed[slot] = self._count[slot] = 0
+        self._skip[slot] = self._phase[slot]
+        self._t0[slot] = np.nan
+
+    # -- feeding ------------------------------------------------------------------------------------
+    def _write(self, slots: np.ndarray, t: np.ndarray, x: np.ndarray, closed: list[_Closed]) -> None:
+        """Feed clean samples t (m, n), x (m, n, n_columns) of m distinct machines; closed windows go to ``closed``."""
+        m, n = t.shape
+        fresh = self._fed[slots] == 0
+        self._t0[slots[fresh]] = t[fresh, 0]
+        self._fed[slots] += n
+        self._next_t[slots] = t[:, -1] + DT
+        self.samples += m * n
+        k = np.arange(n)
+        done = np.zeros(m, dtype=np.int64)
+        while True:
+            rest = n - done
+            skip = np.minimum(self._skip[slots], rest)
+            self._skip[slots] -= skip
+            done += skip
+            rest -= skip
+            if not rest.any():
+                return
+            fill = self._fill[slots]
+            take = np.minimum(rest, self.window - fill)
+            if not done.any() and np.all(take == n):  # the common case: every chunk fits its window whole
+                self._buffer[slots[:, None], fill[:, None] + k] = x
+            else:
+                rows, cols = np.nonzero(k < take[:, None])
+                self._buffer[slots[rows], fill[rows] + cols] = x[rows, done[rows] + cols]
+            self._fill[slots] = fill + take
+            done += take
+            full = np.flatnonzero(self._fill[slots] == self.window)
+            if full.size:
+                self._close(slots[full], closed)
+
+    def _close(self, slots: np.ndarray, closed: list[_Closed]) -> None:
+        """Copy out the full windows of ``slots``; start their next ones (overlap kept, or hop − window skipped)."""
+        samples = self._buffer[slots]  # a copy (fancy indexing)
+        keep = max(0, self.window - self.hop)
+        if keep:
+            self._buffer[slots, :keep] = samples[:, self.window - keep:]
+        for i, s in enumerate(slots.tolist()):
+            closed.append(_Closed(s, int(self._phase[s] + self._count[s] * self.hop), float(self._t0[s]), samples[i]))
+        self._count[slots] += 1
+        self._fill[slots] = keep
+        self._skip[slots] = max(0, self.hop - self.window)
+
+    def _clean(self, batch: ChunkBatch, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Chunk indices that are clean (module docstring) and the rest, in arrival order."""
+        lengths = np.diff(batch.offsets)
+        once = np.bincount(slots, minlength=len(self._names))[slots] == 1
+        usable = once & (lengths >= 2)
+        for c, absent in batch.absent.items():
+            if c not in self.defaults:
+                usable &= ~absent
+        ok = np.zeros(len(batch), dtype=bool)
+        ok[usable] = True
+        starts = batch.offsets[:-1]
+        bad = ~np.isfinite(batch.t)
+        for c, values in batch.channels.items():
+            bad |= ~np.isfinite(values) & ~np.repeat(batch.absent[c], lengths)
+        if bad.any():
+            ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(bad), side="right") - 1)] = False
+        step = np.abs(np.diff(batch.t) - DT) > TOLERANCE
+        joins = starts[1:]
+        step[joins[(joins > 0) & (joins < batch.t.size)] - 1] = False  # from one chunk to the next is no spacing
+        if step.any():
+            ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(step) + 1, side="right") - 1)] = False
+        expected = self._next_t[slots]
+        first = batch.t[np.minimum(starts, max(batch.t.size - 1, 0))] if batch.t.size else np.zeros(len(batch))
+        ok &= np.isnan(expected) | (np.abs(first - expected) <= TOLERANCE)
+        return np.flatnonzero(ok), np.flatnonzero(~ok)
+
+    def _matrix(self, batch: ChunkBatch, rows: np.ndarray) -> np.ndarray:
+        """Columns of the samples ``rows`` side by side, (len(rows), n_columns), defaults filled in."""
+        x = np.empty((rows.size, len(self.columns)))
+        chunk_of = np.searchsorted(batch.offsets, rows, side="right") - 1
+        for j, c in enumerate(self.columns):
+            x[:, j] = batch.channels[c][rows]
+            if c in self.defaults:
+                x[batch.absent[c][chunk_of], j] = self.defaults[c]
+        return x
+
+    def update(self, chunks: Sequence[Chunk]) -> list[WindowVerdict]:
+        """Feed chunks of any machines (in arrival order); returns the verdicts (``WindowVerdict``) of the windows
+        they close and of the windows their breaks cut short."""
+        batch = ChunkBatch.from_chunks(chunks, self.columns)
+        if not len(batch):
+            return []
+        slots = self._slots(batch.machines)
+        clean, rest = self._clean(batch, slots)
+        closed: list[_Closed] = []
+        out: list[WindowVerdict] = []
+        lengths = np.diff(batch.offsets)
+        for n in np.unique(lengths[clean]).tolist():
+            group = clean[lengths[clean] == n]
+            rows = (batch.offsets[group][:, None] + np.arange(n)).reshape(-1)
+            self._write(slots[group], batch.t[rows].reshape(-1, n),
+                        self._matrix(batch, rows).reshape(group.size, n, -1), closed)
+        for i in rest.tolist():
+            self._plan(batch, int(i), int(slots[i]), closed, out)
+        return out + self._judge(closed)
+
+    def _plan(self, batch: ChunkBatch, i: int, slot: int, closed: list[_Closed], out: list[WindowVerdict]) -> None:
+        """One chunk that is not clean, through :func:`plan_chunk`: segments are fed, breaks restart the window."""
+        a, b = int(batch.offsets[i]), int(batch.offsets[i + 1])
+        t = batch.t[a:b]
+        expected = self._next_t[slot]
+        ops, next_t = plan_chunk(t, self._matrix(batch, np.arange(a, b)), self.columns,
+                                 None if np.isnan(expected) else float(expected))
+        for op in ops:
+            if isinstance(op, Break):
+                begun = int(self._phase[slot] + self._count[slot] * self.hop)
+                if self._fed[slot] > begun:
+                    start = float(self._t0[slot]) + begun * DT
+                    out.append(WindowVerdict(self._names[slot], start, float(op.t), Verdict(INVALID, None, {},
+                                                                                           op.reason)))
+                self._restart(slot)
+            else:
+                one = np.array([slot])
+                if op.t.size:
+                    self._write(one, op.t[None], op.x[None], closed)
+        self._next_t[slot] = np.nan if next_t is None else next_t
+
+    # -- judging ------------------------------------------------------------------------------------
+    def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:
+        """Verdicts and ``kl`` scores of closed windows, ``batch`` windows per call, in closing order."""
+        out = []
+        features = self.model.features_
+        width = 2 * len(features.feature_names_)
+        for lo in range(0, len(closed), self.batch):
+            part = closed[lo:lo + self.batch]
+            raw = np.stack([c.samples for c in part])
+            rows = features.transform_evidence(raw)
+            reasons = features.window_reasons(raw)
+            evidence = []
+            for c, row, why in zip(part, rows, reasons):
+                if self.smoothing == 1:
+                    evidence.append((row[:width],) * 3)
+                    continue
+                pool = self._pools[c.slot]
+                if pool is None:
+                    pool = self._pools[c.slot] = ConditionStream(self.model, n_windows=self.smoothing)
+                pool.update_features(row)
+                got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
+                evidence.append(got if got is not None else (row[:width],) * 3)
+            verdicts = judge_streams(self.model, self.smoothing, evidence, reasons)
+            band = rows[:, : width // 2]
+            for c, v, s in zip(part, verdicts, band):
+                first = c.start
+                out.append(WindowVerdict(self._names[c.slot], c.t0 + first * DT, c.t0 + (first + self.window) * DT, v,
+                                         s.reshape(self.shape)))
+        return out
