@@ -20,7 +20,6 @@ from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import parse_effects
 from hydrowatch.plant.excitation import n_samples, parse_volts, read_command
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, parse_state
-from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
@@ -47,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects", default="", help="effects to switch on: 'id[:k=v,...];id2' (plant-model.md)")
     parser.add_argument("--nominal", type=Path,
                         help="healthy-machine parameters, JSON: flat parameters or a model saved by "
-                             "'hydrowatch gap --save-model' (its effects are switched on too; --effects adds to them)")
+                             "'hydrowatch gap --save-model' (its effects are switched on too, --effects adds to "
+                             "them; its corrections are added to the simulated sensors)")
     parser.add_argument("--format", choices=("mcap", "parquet"), default="mcap", help="file format (default mcap)")
     parser.add_argument("--seed", type=int, default=0, help="data set seed; each state derives its own (default 0)")
 
@@ -69,22 +69,20 @@ def _states(args: argparse.Namespace) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, write one file per state, print the JSON summary; returns 0."""
-    from hydrowatch.gap import read_model
+    from hydrowatch.gap.discrepancy import GapModel, load_model, simulate_states
     from hydrowatch.io import write_recording
 
     states = _states(args)
     volts = parse_volts(args.volts)
-    nominal: PlantParameters | None = None
-    effects: dict[str, dict[str, float]] = {}
-    if args.nominal is not None:
-        nominal, effects = read_model(args.nominal)
-    effects = {**effects, **parse_effects(args.effects)}
+    model = load_model(args.nominal) if args.nominal is not None else GapModel(PlantParameters(), {})
+    effects = {**model.effects, **parse_effects(args.effects)}
     command = read_command(args.command) if args.command is not None else None
     seconds = command.size / SAMPLE_RATE_HZ if command is not None else n_samples(args.seconds) / SAMPLE_RATE_HZ
     args.out.mkdir(parents=True, exist_ok=True)
     files = []
-    recordings = simulate_states(states, seconds=seconds, volts=volts, command=command, nominal=nominal,
-                                 effects=effects, noise=not args.no_noise, seed=args.seed)
+    # a saved model's corrections run as an output-discrepancy stage after the plant (gap/discrepancy.py)
+    recordings = simulate_states(model, states, seconds=seconds, volts=volts, command=command, effects=effects,
+                                 noise=not args.no_noise, seed=args.seed)
     for state, recording in tqdm(zip(states, recordings), total=len(states), desc="states", unit="state",
                                  file=sys.stderr, disable=None):
         path = args.out / f"{state}.{args.format}"
@@ -94,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         "out": str(args.out), "format": args.format, "files": files, "states": states, "seconds": seconds,
         "volts": None if command is not None else list(volts), "seed": args.seed, "noise": not args.no_noise,
         "effects": effects, "command": None if args.command is None else str(args.command),
+        "corrections": None if model.discrepancy is None else model.discrepancy.to_config(),
     }
     print(json.dumps(summary))
     return 0

@@ -22,6 +22,7 @@ from hydrowatch.gap.diagnose import WHITE_LIMIT, Diagnosis, diagnose, residual_i
 from hydrowatch.gap.locate import noise_std, whiteness
 from hydrowatch.gap.relations import STRUCTURE, RelationCheck, check_relations
 from hydrowatch.gap.report import build_report, model_config
+from hydrowatch.gap.second_opinion import SecondOpinion, second_opinion
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.effects import Effects, resolve_effects
 from hydrowatch.plant.parameters import PlantParameters
@@ -71,6 +72,9 @@ class GapAnalyser:
     unidentified_ : list of Unidentified
     relations_ : list of RelationCheck
         The component relations (load, motor, valve) checked on the recording (parity localisation).
+    second_opinions_ : list of SecondOpinion
+        Stability-selected sparse regression (second_opinion.py) on the calibrated residual, then on
+        the residual before each later accepted effect; empty when the calibrated residual is white.
     report_ : dict
         The contract's report (``mismatch``, ``effects``, ``located``, ``fit``,
         ``calibrated_parameters``, ``summary``) plus ``relations``, ``noise``, ``experiments``, ``trials``.
@@ -111,8 +115,9 @@ class GapAnalyser:
         self.unidentified_ = unidentified
         self.after_prediction_ = _after(diagnosis.final.prediction, unidentified)
         self.relations_ = _relations(aligned, calibrated, diagnosis.final)
+        self.second_opinions_ = [] if white else _second_opinions(aligned, calibrated, diagnosis, nominal.omega_p)
         self.report_ = build_report(aligned, nominal, nominal_prediction, calibrated, diagnosis, unidentified,
-                                    self.after_prediction_, self.relations_)
+                                    self.after_prediction_, self.relations_, self.second_opinions_)
         self.model_ = model_config(diagnosis.final, unidentified)
         return self
 
@@ -160,6 +165,16 @@ def _relations(aligned: AlignedRecording, calibrated: OutputErrorFit, final: Out
     sims = simulate_sensors(aligned, [final.parameters] * len(kinds), kinds)
     nominal = {name: sims[kinds.index(e)] for name, e in structural.items()}
     return check_relations(aligned.voltage, aligned.measured, nominal, final.prediction, noise, final.parameters, used)
+
+
+def _second_opinions(aligned: AlignedRecording, calibrated: OutputErrorFit, diagnosis: Diagnosis, pump_speed: float
+                     ) -> list[SecondOpinion]:
+    """The second opinion on the calibrated residual, then on the residual each later accepted effect met."""
+    out = [second_opinion(aligned, calibrated.prediction, pump_speed=pump_speed)]
+    for trial in diagnosis.accepted[:-1]:
+        out.append(second_opinion(aligned, trial.refit.fit.prediction, pump_speed=pump_speed,
+                                  residual=f"after {trial.refit.candidate.label}"))
+    return out
 
 
 def _after(prediction: np.ndarray, unidentified: list[Unidentified]) -> np.ndarray:

@@ -9,7 +9,7 @@ Kutz 2016). The terms chosen say what the missing physics depends on; the correc
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,6 +18,13 @@ from hydrowatch.recording import SAMPLE_RATE_HZ
 
 LOW_SPEED_RAD_S = 1.0
 """Speed scale of the low-speed (breakaway) term exp(−(ω/ω0)²), gearbox side, rad/s."""
+
+
+DELAY_SAMPLES = 4
+"""Delay of the ``u(t−20 ms)`` term, samples at 200 Hz."""
+
+RATE_SCALE_FRACTION = 0.1
+"""The ``sign(du/dt)`` term is tanh(u̇ / s) with s = this fraction of the record's std of u̇."""
 
 
 @dataclass(frozen=True)
@@ -30,14 +37,24 @@ class Library:
         One name per column, e.g. ``"ω·|ω|"``.
     theta : ndarray, shape (n, K)
         Term values.
+    settings : dict of str to float
+        What fixes the terms besides the trajectory: ``pump_speed`` (rad/s) and ``rate_scale``
+        (V/s, the smoothing of sign(du/dt)). Rebuilding the library on another trajectory with the
+        same settings gives the same functions (the saved model stores them; discrepancy.py).
     """
 
     names: tuple[str, ...]
     theta: np.ndarray
+    settings: dict[str, float] = field(default_factory=dict)
+
+    def column(self, name: str) -> np.ndarray:
+        """The values of one term, shape (n,)."""
+        return self.theta[:, self.names.index(name)]
 
 
 def build_library(
-    voltage: np.ndarray, simulated: np.ndarray, t: np.ndarray, *, pump_speed: float, fs: float = SAMPLE_RATE_HZ
+    voltage: np.ndarray, simulated: np.ndarray, t: np.ndarray, *, pump_speed: float, fs: float = SAMPLE_RATE_HZ,
+    rate_scale: float | None = None,
 ) -> Library:
     """The regressor library of gap-method.md, step 3.
 
@@ -48,13 +65,17 @@ def build_library(
     simulated : ndarray, shape (3, n)
         Simulated flow [L/min], speed [rad/s], torque [N·m].
     t : ndarray, shape (n,)
-        Time since the start of the record, s.
+        Sample times, s (terms use the time since the first sample).
     pump_speed : float
         Pump shaft speed ωp, rad/s (ripple lines).
+    rate_scale : float, optional
+        Smoothing of sign(du/dt), V/s (default: RATE_SCALE_FRACTION × the std of u̇ on this record).
     """
     flow, speed, torque = simulated
     du = np.gradient(voltage) * fs
-    delayed = np.concatenate([np.full(4, voltage[0]), voltage[:-4]])
+    if rate_scale is None:
+        rate_scale = RATE_SCALE_FRACTION * float(np.std(du)) + 1e-12
+    delayed = np.concatenate([np.full(DELAY_SAMPLES, voltage[0]), voltage[:-DELAY_SAMPLES]])
     tt = t - t[0]
     phase = pump_speed * tt
     terms = {
@@ -62,7 +83,7 @@ def build_library(
         "u": voltage,
         "u(t−20 ms)": delayed,
         "du/dt": du,
-        "sign(du/dt)": np.tanh(du / (np.std(du) * 0.1 + 1e-12)),
+        "sign(du/dt)": np.tanh(du / rate_scale),
         "max(0.5 V − u, 0)": np.maximum(0.5 - voltage, 0.0),
         "max(u − 3 V, 0)": np.maximum(voltage - 3.0, 0.0),
         "ω": speed,
@@ -80,7 +101,8 @@ def build_library(
         "sin(2ωp·t)": np.sin(2 * phase),
         "cos(2ωp·t)": np.cos(2 * phase),
     }
-    return Library(tuple(terms), np.column_stack(list(terms.values())))
+    return Library(tuple(terms), np.column_stack(list(terms.values())),
+                   {"pump_speed": float(pump_speed), "rate_scale": float(rate_scale)})
 
 
 def stlsq(
@@ -140,6 +162,10 @@ class SparseCorrection:
         The non-zero terms and their coefficients.
     holdout_gain_ : float
         Relative drop of the held-out residual RMS, 0…1 (negative when the correction hurts).
+    threshold_ : float
+        The threshold chosen.
+    settings_ : dict of str to float
+        The library's settings (``Library.settings``), to rebuild the same terms elsewhere.
     """
 
     def __init__(self, *, thresholds: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2), ridge: float = 1e-6) -> None:
@@ -153,14 +179,16 @@ class SparseCorrection:
             raise ParameterError("thresholds must be a non-empty tuple of floats. Got (). Give e.g. (0.05, 0.1).")
         theta_fit, theta_hold = library.theta[fit_mask], library.theta[holdout_mask]
         base = float(np.sqrt(np.mean(residual[holdout_mask] ** 2)))
-        best: tuple[float, np.ndarray] | None = None
+        best: tuple[float, np.ndarray, float] | None = None
         for threshold in self.thresholds:
             coef = stlsq(theta_fit, residual[fit_mask], threshold, self.ridge)
             err = float(np.sqrt(np.mean((residual[holdout_mask] - theta_hold @ coef) ** 2)))
             if best is None or err < best[0]:
-                best = (err, coef)
+                best = (err, coef, threshold)
         assert best is not None
         self.coef_ = best[1]
+        self.threshold_ = best[2]
+        self.settings_ = dict(library.settings)
         self.names_ = library.names
         self.terms_ = {name: float(c) for name, c in zip(library.names, best[1]) if c != 0.0}
         self.holdout_gain_ = 1.0 - best[0] / base if base > 0 else 0.0

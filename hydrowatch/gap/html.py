@@ -113,6 +113,16 @@ def _correlations(analyser: GapAnalyser) -> str:
     return _png(fig)
 
 
+def _opinion(effect: dict) -> str:
+    """The second opinion on one named effect, one line (empty when there is none)."""
+    so = effect.get("second_opinion")
+    if so is None:
+        return ""
+    said = (f"agrees ({', '.join(so['supporting'][:3])})" if so["agrees"]
+            else f"does not corroborate (points at {', '.join(so['implicated'][:3]) or 'no catalog effect'})")
+    return f"<br/><i>second opinion (sparse regression): {html.escape(said)}</i>"
+
+
 def render_html(analyser: GapAnalyser) -> str:
     """The whole report as one self-contained HTML page."""
     import matplotlib
@@ -123,7 +133,7 @@ def render_html(analyser: GapAnalyser) -> str:
     rows = "".join(
         f"<tr><td>{s}</td>" + "".join(f"<td>{100 * report['fit'][k][s]:.2f}</td>" for k in models)
         + f"<td>{100 * report['noise'][s]:.2f}</td></tr>" for s in SENSORS)
-    effects = "".join(f"<li><b>{html.escape(e['id'])}</b>: {html.escape(e['evidence'])}</li>"
+    effects = "".join(f"<li><b>{html.escape(e['id'])}</b>: {html.escape(e['evidence'])}{_opinion(e)}</li>"
                       for e in report["effects"])
     relations = "".join(
         f"<tr><td>{r['relation']}</td><td>{html.escape(r['component'])}</td><td>{r['ratio']:.2f}</td>"

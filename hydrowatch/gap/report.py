@@ -8,28 +8,24 @@ recording cannot show and the run that would), ``trials`` (every candidate judge
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hydrowatch.errors import ParameterError
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit
 from hydrowatch.gap.diagnose import Diagnosis, Trial
+from hydrowatch.gap.discrepancy import MODEL_SCHEMA, Discrepancy, SensorCorrection, load_model
 from hydrowatch.gap.locate import noise_std, nrmse, regimes, strongest_regime
 from hydrowatch.gap.relations import RELATIONS, RelationCheck, describe
-from hydrowatch.plant.effects import resolve_effects
 from hydrowatch.plant.parameters import PlantParameters
-from hydrowatch.recording import SENSORS, UNITS
+from hydrowatch.recording import SENSORS
 
 if TYPE_CHECKING:
     from hydrowatch.gap.analysis import Unidentified
-
-MODEL_SCHEMA = "hydrowatch.gap-model/1"
-"""Schema tag of the saved augmented model (docs/gap.md)."""
+    from hydrowatch.gap.second_opinion import SecondOpinion
 
 EXCESS_RATIO = 1.15
 """A sensor is mismatched when its held-out NRMSE exceeds its noise ceiling by this factor."""
@@ -127,14 +123,21 @@ def _fits(fit: dict[str, float]) -> str:
 
 def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_prediction: np.ndarray,
                  calibrated: OutputErrorFit, diagnosis: Diagnosis, unidentified: list[Unidentified],
-                 after_prediction: np.ndarray, relations: list[RelationCheck]) -> dict[str, Any]:
-    """The report dict (module docstring), with a plain-language summary carrying the numbers."""
+                 after_prediction: np.ndarray, relations: list[RelationCheck],
+                 opinions: Sequence[SecondOpinion] = ()) -> dict[str, Any]:
+    """The report dict (module docstring), with a plain-language summary carrying the numbers.
+
+    ``opinions``: the second opinion on the residual each accepted effect met (the calibrated one
+    first; second_opinion.py); each named effect gets its ``second_opinion`` verdict.
+    """
     noise = noise_ceiling(aligned, after_prediction)
     where = located(aligned, calibrated.prediction, noise, relations)
     effects = []
     before = calibrated.prediction
-    for trial in diagnosis.accepted:
+    for k, trial in enumerate(diagnosis.accepted):
         effects.append(_effect_entry(aligned, trial, before, diagnosis.final))
+        if k < len(opinions):
+            effects[-1]["second_opinion"] = opinions[k].verdict(trial.refit.candidate.id)
         before = trial.refit.fit.prediction
     regime_of = {row["sensor"]: row["regime"] for row in where}
     effects += [_unidentified_entry(u, regime_of.get(u.sensor, "no single regime")) for u in unidentified]
@@ -153,6 +156,7 @@ def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_pr
         "mismatch": bool(effects), "effects": effects, "located": where, "fit": fit,
         "calibrated_parameters": table, "relations": [c.as_dict() for c in relations], "noise": noise,
         "experiments": dict(diagnosis.unrevealable), "trials": trials,
+        "second_opinion": opinions[0].as_dict() if opinions else None,
     }
     report["summary"] = summary(report, _parameter_changes(table), describe(list(relations)))
     return report
@@ -174,6 +178,7 @@ def summary(report: dict[str, Any], changes: str, relations: str = "") -> str:
         parts.append(relations)
         for e in report["effects"]:
             parts.append(f"{e['id']}: {e['evidence']}.")
+        parts.append(_second_opinion_sentence(report["effects"]))
         parts.append(f"Held-out NRMSE calibrated {_fits(fit['calibrated'])} → with the effects {_fits(fit['after'])} "
                      f"(noise ceiling {_fits(noise)}).")
     else:
@@ -195,6 +200,26 @@ def summary(report: dict[str, Any], changes: str, relations: str = "") -> str:
     return " ".join(p for p in parts if p)
 
 
+def _second_opinion_sentence(effects: list[dict[str, Any]]) -> str:
+    """How the sparse regression's stable terms read the named effects (corroboration, not a rule)."""
+    judged = [e for e in effects if "second_opinion" in e]
+    if not judged:
+        return ""
+    parts = []
+    for e in judged:
+        so = e["second_opinion"]
+        if so["agrees"]:
+            freq = [so["selection_frequency"][s.split(": ", 1)[0]][s.split(": ", 1)[1]] for s in so["supporting"]]
+            parts.append(f"agrees on {e['id']} ({', '.join(so['supporting'][:3])}; selected in "
+                         f"{_pct(min(freq))}–{_pct(max(freq))} of the resampled fits"
+                         f"{'' if so['specific'] else '; shared with other dynamic effects'})")
+        else:
+            found = ", ".join(so["implicated"]) or "no catalog signature"
+            parts.append(f"does not corroborate {e['id']} (its stable terms point at {found})")
+    return ("Second opinion (stability-selected sparse regression on the residual): " + "; ".join(parts)
+            + "; it corroborates, it does not decide.")
+
+
 def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dict[str, Any]:
     """The augmented model as a simulator configuration (docs/gap.md, "Saved model")."""
     effects = {k: {p: float(v) for p, v in vals.items()} for k, vals in final.effects.items()}
@@ -202,26 +227,22 @@ def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dic
     config: dict[str, Any] = {"schema": MODEL_SCHEMA, "parameters": final.parameters.to_dict(), "effects": effects,
                               "effects_cli": cli}
     if unidentified:
-        config["corrections"] = {u.sensor: {"unit": UNITS[u.sensor], "terms": u.correction.terms_}
-                                 for u in unidentified}
+        discrepancy = Discrepancy(tuple(SensorCorrection(u.sensor, dict(u.correction.terms_), u.correction.settings_)
+                                        for u in unidentified))
+        config["corrections"] = discrepancy.to_config()
     return config
 
 
 def read_model(path: str | Path) -> tuple[PlantParameters, dict[str, dict[str, float]]]:
     """Plant parameters and effects from a saved model (MODEL_SCHEMA) or a flat parameters JSON file.
 
+    The model's output corrections (its discrepancy stage) are read by
+    :func:`hydrowatch.gap.discrepancy.load_model`, which also gives these two.
+
     Raises
     ------
     ParameterError
         Unreadable JSON, unknown parameter names or effects out of the catalog's ranges.
     """
-    text = Path(path).read_text(encoding="utf-8") if Path(path).is_file() else None
-    if text is None:
-        raise ParameterError(f"model file must exist. Got '{path}'. Give a JSON file written by --save-model.")
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ParameterError(f"{path} must be valid JSON. Got an error: {exc}.") from None
-    if isinstance(data, dict) and data.get("schema") == MODEL_SCHEMA:
-        return PlantParameters.from_dict(data["parameters"]), resolve_effects(data.get("effects"))
-    return PlantParameters.from_json(text), {}
+    model = load_model(path)
+    return model.parameters, model.effects
