@@ -15,7 +15,6 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 
 import pyarrow as pa
 import zenoh
@@ -24,13 +23,15 @@ from hydrowatch.bus.channel import WakingChannel
 from hydrowatch.bus.keys import Key, parse_key
 from hydrowatch.bus.shard import Shard
 from hydrowatch.errors import DataError
-from hydrowatch.io.codec import decode_batch, encode_batch
+from hydrowatch.io.codec import Layout, check_payload, encode_batch
 from hydrowatch.io.mcap_io import TOPIC_KINDS
 from hydrowatch.log import event, get_logger
 from hydrowatch.schemas import schema_by_name
 
 log = get_logger(__name__)
 _STAMP = struct.Struct("<q")
+SETTLE_S = 0.5
+"""Seconds a publisher waits after its keys first match, for the subscribers it learns of later."""
 
 
 class Publisher:
@@ -68,11 +69,16 @@ class Publisher:
             self._publishers[key] = pub
         return pub
 
-    def wait_for_subscribers(self, keys: Sequence[str], timeout: float) -> bool:
-        """Declare the publishers of ``keys`` and wait until each has a matching subscriber.
+    def wait_for_subscribers(self, keys: Sequence[str], timeout: float, settle: float = SETTLE_S) -> bool:
+        """Declare the publishers of ``keys``, wait until each has a matching subscriber, then
+        ``settle`` seconds more.
 
         Zenoh delivers only to subscribers it already knows of, so a publisher whose first
-        messages must not be lost waits here. Returns False when ``timeout`` seconds pass first.
+        messages must not be lost waits here. Matching turns true with the *first* subscriber; in
+        an embedded bus a peer hears of the others by gossip and connects to them a moment later
+        (two recorder shards: the second one's declaration came mid-way through the first burst
+        and it missed those messages), hence the settling time. Returns False when ``timeout``
+        seconds pass before every key matches.
         """
         deadline = time.monotonic() + timeout
         publishers = [self._publisher(k) for k in keys]
@@ -80,6 +86,7 @@ class Publisher:
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.01)
+        time.sleep(settle)
         return True
 
     def put_payload(self, key: str, payload: bytes, publish_time_ns: int | None = None) -> None:
@@ -105,28 +112,64 @@ class Publisher:
         self.close()
 
 
-@dataclass
 class Message:
-    """One received message.
+    """One received message, validated on receipt; its record batch is read on first access.
 
     Attributes
     ----------
     key : Key
         Fleet, machine and topic of the key it came on.
     batch : pyarrow.RecordBatch
-        The decoded, validated record batch.
+        The decoded, validated record batch (read from ``payload`` when first asked for: a
+        consumer that stores payloads, like the recorder, never pays for it).
     payload : bytes
         The bytes as received (the recorder stores them unchanged).
     receive_time_ns, publish_time_ns : int
         Wall-clock receive and publish times, ns since the Unix epoch (publish time 0 when the
         publisher sent no attachment).
+    layout : hydrowatch.io.codec.Layout or None
+        What validation found (schema, where ``t`` starts); None when ``batch`` was given.
     """
 
-    key: Key
-    batch: pa.RecordBatch
-    payload: bytes
-    receive_time_ns: int
-    publish_time_ns: int
+    __slots__ = ("_batch", "key", "layout", "payload", "publish_time_ns", "receive_time_ns")
+
+    def __init__(
+        self,
+        key: Key,
+        batch: pa.RecordBatch | None,
+        payload: bytes,
+        receive_time_ns: int,
+        publish_time_ns: int,
+        layout: Layout | None = None,
+    ) -> None:
+        if batch is None and layout is None:
+            raise ValueError("a Message needs its batch or the layout check_payload returned")
+        self.key, self._batch, self.payload, self.layout = key, batch, payload, layout
+        self.receive_time_ns, self.publish_time_ns = receive_time_ns, publish_time_ns
+
+    @property
+    def batch(self) -> pa.RecordBatch:
+        if self._batch is None:
+            assert self.layout is not None
+            self._batch = self.layout.read(self.payload)
+        return self._batch
+
+    @property
+    def schema(self) -> pa.Schema:
+        """The message's Arrow schema (with its metadata), without reading the batch."""
+        return self.layout.schema if self.layout is not None else self.batch.schema
+
+    def start_time(self) -> float | None:
+        """``t`` of the first row, s (None when the message has no ``t`` column or no rows)."""
+        if self.layout is not None and self.layout.first_t is not None:
+            return self.layout.start_time(self.payload)
+        batch = self.batch
+        if "t" not in batch.schema.names or not batch.num_rows:
+            return None
+        return float(batch.column("t")[0].as_py())
+
+    def __repr__(self) -> str:
+        return f"Message({self.key}, {len(self.payload)} bytes, received {self.receive_time_ns})"
 
 
 class Subscriber:
@@ -201,7 +244,7 @@ class Subscriber:
                 parsed = parse_key(key)
                 schema = self.schema if self.schema is not None else schema_by_name(TOPIC_KINDS[parsed.topic])
                 known = self._keys[key] = (parsed, schema)
-            return Message(known[0], decode_batch(payload, known[1], source=key), payload, received, published)
+            return Message(known[0], None, payload, received, published, check_payload(payload, known[1], key))
         except DataError as exc:
             self.undecodable[key] += 1
             if self.undecodable[key] == 1:

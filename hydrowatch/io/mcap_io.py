@@ -27,10 +27,11 @@ import zstandard
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.codec import decode_batch, encode_batch
+from hydrowatch.io.mcap_chunks import ChunkedWriter
 from hydrowatch.log import event, get_logger
 from hydrowatch.schemas import schema_by_name, schema_name, schema_version, validate, wire_schema
 
@@ -99,7 +100,7 @@ class McapWriter:
             raise ParameterError(f"chunk_size must be > 0 bytes. Got {chunk_size}.")
         self.path = Path(path)
         self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+        self._writer = ChunkedWriter(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
         self._writer.start(profile="hydrowatch", library="hydrowatch")
         self._schemas: dict[tuple[str, int], int] = {}
         self._channels: dict[str, tuple[int, str, int]] = {}
@@ -176,19 +177,18 @@ class McapWriter:
             raise DataError("writer must be open to write. Got a closed one.", str(self.path))
         if log_time_ns < 0:
             raise ParameterError(f"log_time_ns must be >= 0. Got {log_time_ns}.")
-        channel_id = self._channel(topic, name, version)
-        self._writer.add_message(
-            channel_id=channel_id,
-            log_time=int(log_time_ns),
-            data=data,
-            publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns),
-            sequence=self.messages,
-        )
+        known = self._channels.get(topic)
+        channel_id = known[0] if known is not None and known[1] == name and known[2] == version else (
+            self._channel(topic, name, version))
+        log_time_ns = int(log_time_ns)
+        publish = log_time_ns if publish_time_ns is None else int(publish_time_ns)
+        closed = self._writer.add_encoded(channel_id, log_time_ns, data, publish, self.messages)
         self.messages += 1
-        # A finished chunk reaches the OS at once, so SIGKILL loses only the chunk being built
-        # (a no-op while the message only went into the chunk in memory).
-        self._file.flush()
-        if self._flush_every_ns is not None:
+        if closed:
+            # a finished chunk reaches the OS at once, so SIGKILL loses only the chunk being built
+            self._file.flush()
+            self._chunk_start_ns = None
+        elif self._flush_every_ns is not None:
             if self._chunk_start_ns is None:
                 self._chunk_start_ns = log_time_ns
             elif log_time_ns - self._chunk_start_ns >= self._flush_every_ns:
