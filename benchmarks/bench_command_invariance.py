@@ -17,7 +17,10 @@ open set, and sensor subsets. Accuracy = share of windows whose verdict is the t
 (``unknown`` counts as wrong, except in the open-set row where it is the right answer).
 
 Round 3 adds: evidence pooled over a machine's windows (``smoothing``: accuracy and delay after
-a change of state, open set per machine) and the sensor subsets with per-state fills.
+a change of state, open set per machine) and the sensor subsets with per-state fills. Round 4
+adds machines with severities spread in their bands on a long duty cycle (accuracy once each
+machine's pool is full, "settled"), the confusion pairs in holds and moving windows, and the
+open set once the pool is full.
 
 Run: ``python benchmarks/bench_command_invariance.py [--train-seconds 300] [--test-seconds 150]
 [--quick]``. Timings are taken on a shared 2-core machine (pessimistic): the scoring cost is
@@ -194,12 +197,38 @@ POOLED = (1, 3, 6, 12)
 """Windows pooled per machine in the smoothing rows (1: each window alone)."""
 
 
+def settled(pred: np.ndarray, n: int) -> np.ndarray:
+    """The verdicts of a machine from its n-th window on (its pool full), shape (len(pred) - n + 1,)."""
+    return pred[n - 1:]
+
+
+def confusion(model: ConditionModel, machines: dict[str, np.ndarray], n: int) -> None:
+    """Which states are confused, in holds (command range < 0.05 V in the window) or moving, per window or pooled."""
+    pairs: dict[tuple[str, str, str], int] = {}
+    windows = {"hold": 0, "moving": 0}
+    for m, w in machines.items():
+        truth = m.split("#")[0]
+        part = np.where(np.ptp(w[:, :, 0], axis=1) < 0.05, "hold", "moving")
+        for kind in windows:
+            windows[kind] += int(np.sum(part == kind))
+        for p, kind in zip(model.predict(w, smoothing=n), part):
+            if p != truth:
+                pairs[(truth, str(p), str(kind))] = pairs.get((truth, str(p), str(kind)), 0) + 1
+    errors = {k: sum(c for (_, _, kk), c in pairs.items() if kk == k) for k in windows}
+    print(f"  confusion, n={n}: wrong in holds {errors['hold']}/{windows['hold']}, moving "
+          f"{errors['moving']}/{windows['moving']} windows; pairs (true -> read, where: windows):", flush=True)
+    for (truth, p, kind), c in sorted(pairs.items(), key=lambda kv: -kv[1])[:12]:
+        print(f"    {truth:22s} -> {p:22s} {kind:6s} {c}", flush=True)
+
+
 def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> None:
     """Duty-cycle accuracy and delay after a change of state with evidence pooled over n windows per machine.
 
     Delay: a machine reads healthy for 12 windows, then turns into each fault state; counted are
     the windows after the change until the verdict first stops reading healthy (``unknown``
     while the pooled windows mix two states, or a fault) and until it first names the new state.
+    Severities spread in their bands: 3 machines per state, on a short duty cycle (all windows,
+    the first ones pool fewer) and a long one (also "settled": from each machine's n-th window on).
     """
     params = [state_parameters(s) for s in states]
     duty = simulate(params, list(states), duty_cycle(2 * test_s, (0, 4), seed=4), seed=44)
@@ -209,10 +238,15 @@ def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> 
     machines = [f"{s}#{i}" for i, s in enumerate(list(states) * 3)]
     spread = simulate([random_state_parameters(m.split("#")[0], rng)[0] for m in machines], machines,
                       duty_cycle(2 * test_s / 3, (0, 4), seed=21), seed=22)
+    long = simulate([random_state_parameters(m.split("#")[0], rng)[0] for m in machines], machines,
+                    duty_cycle(2 * test_s, (0, 4), seed=23), seed=24)
     for n in POOLED:
         acc = accuracy(model, duty, smoothing=n)
         acc_spread = np.mean(np.concatenate([model.predict(w, smoothing=n) == m.split("#")[0]
                                              for m, w in spread.items()]))
+        judged_long = {m: model.predict(w, smoothing=n) == m.split("#")[0] for m, w in long.items()}
+        acc_long = np.mean(np.concatenate(list(judged_long.values())))
+        acc_settled = np.mean(np.concatenate([settled(v, n) for v in judged_long.values()]))
         noticed, named = [], []
         for s in states[1:]:
             joined = np.concatenate([rows["healthy"][:12], rows[s]])
@@ -222,10 +256,12 @@ def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> 
             verdicts = [v.state for v in judged][12:]
             noticed.append(next((i for i, v in enumerate(verdicts) if v != "healthy"), len(verdicts)))
             named.append(next((i for i, v in enumerate(verdicts) if v == s), len(verdicts)))
-        print(f"  pooled over {n:2d} windows: duty cycle {100 * acc:5.1f}% (spread in bands {100 * acc_spread:5.1f}%); "
-              f"after a change of state, not healthy "
-              f"after {np.mean(noticed):.1f} windows (max {max(noticed)}), named after {np.mean(named):.1f} "
-              f"(max {max(named)}) windows of 5 s", flush=True)
+        print(f"  pooled over {n:2d} windows: duty cycle {100 * acc:5.1f}%; spread in bands {100 * acc_spread:5.1f}% "
+              f"(long cycle {100 * acc_long:5.1f}%, settled {100 * acc_settled:5.1f}%); after a change of state, "
+              f"not healthy after {np.mean(noticed):.1f} windows (max {max(noticed)}), named after "
+              f"{np.mean(named):.1f} (max {max(named)}) windows of 5 s", flush=True)
+    for n in (1, 12):
+        confusion(model, long, n)
 
 
 def open_set(states: tuple[str, ...], train: dict[str, np.ndarray], test_s: float) -> None:
@@ -245,9 +281,12 @@ def open_set(states: tuple[str, ...], train: dict[str, np.ndarray], test_s: floa
         known_lost = np.mean(np.concatenate([model.predict(w) == "unknown" for w in held.values()]))
         per_n = []
         for n in (1, 6, 12):
-            unknown_dc = np.mean(np.concatenate([model.predict(w, smoothing=n) == "unknown" for w in dc.values()]))
+            unknown = [model.predict(w, smoothing=n) == "unknown" for w in dc.values()]
+            unknown_dc = np.mean(np.concatenate(unknown))
+            unknown_settled = np.mean(np.concatenate([settled(v, n) for v in unknown]))
             lost_dc = np.mean(np.concatenate([model.predict(w, smoothing=n) == "unknown" for w in held_dc.values()]))
-            per_n.append(f"n={n}: {100 * unknown_dc:.1f}% (known lost {100 * lost_dc:.2f}%)")
+            per_n.append(f"n={n}: {100 * unknown_dc:.1f}% (settled {100 * unknown_settled:.1f}%, "
+                         f"known lost {100 * lost_dc:.2f}%)")
         print(f"  open set, {left_out} never trained: unknown {100 * rejected:.1f}% (noise; known lost "
               f"{100 * known_lost:.2f}%); duty cycle " + ", ".join(per_n), flush=True)
 

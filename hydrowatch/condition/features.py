@@ -313,7 +313,7 @@ class ConditionFeatures:
             if fault is not None:
                 columns[j] = self.relations_.index(RELATION_OF[fault]) * k + j
                 bounds[0, j], bounds[1, j] = self.boxes_[state][fault], self.level_boxes_[state][fault]
-        return EvidenceLayout(columns, bounds)
+        return EvidenceLayout(columns, bounds, prior_once=set(self.relations_) == set(E.RELATIONS))
 
     def _ratios(self, groups: Sequence[E.FillGroup], boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]
                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
