@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -281,6 +282,24 @@ def test_smoothing_is_checked_and_scores_pool(bundle_dir: Path, parity_dir: Path
         pytest.approx(batch[3].probabilities)
 
 
+def test_score_pools_twelve_windows_for_parity_and_none_for_entropy_by_default(
+        bundle_dir: Path, parity_dir: Path, fleet: list, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from hydrowatch.cli import main
+    from hydrowatch.io import write_recording
+    from hydrowatch.training.bundle import ModelBundle
+    from hydrowatch.training.scoring import smoothing_for
+
+    parity, entropy = ModelBundle.load(parity_dir), ModelBundle.load(bundle_dir)
+    assert (smoothing_for(parity), smoothing_for(entropy), smoothing_for(parity, 1)) == (12, 1, 1)
+    path = write_recording(fleet[2], tmp_path / "machine.parquet")
+    capsys.readouterr()
+    assert main(["score", "--model", str(parity_dir), "--data", str(path), "--json"]) == 0
+    default = json.loads(capsys.readouterr().out)["windows"]
+    pooled = score_recording(parity, fleet[2], smoothing=12)["windows"]
+    assert [w["probabilities"] for w in default] == [w["probabilities"] for w in pooled]
+    assert main(["score", "--model", str(bundle_dir), "--data", str(path), "--json"]) == 0  # entropy: per window
+
+
 def test_spool_filter_cache_and_compiled_kernel_equal_the_direct_computation() -> None:
     """Speed-only changes: the cached spool filter and the kernels' numpy error model change no result."""
     from scipy.signal import cont2discrete, lfilter, lfilter_zi
@@ -334,3 +353,27 @@ def test_scorer_service_publishes_pooled_verdicts(parity_dir: Path, fleet: list)
         assert [row["state"] for row in rows] == [v.state for v in expected] == [r.state] * 3
         for row, v in zip(rows, expected):  # the third verdict pools all three windows
             assert row["probabilities"] == pytest.approx(v.probabilities, rel=1e-9)
+
+
+def test_an_abrupt_fault_reads_unknown_at_once_and_is_named_when_the_pool_has_turned_over(parity_dir: Path) -> None:
+    """Pooled verdicts (default 12 windows) on a duty cycle: healthy for 60 s, then a load fault.
+
+    The first window after the change already leaves ``healthy`` (the new state, or ``unknown`` while no
+    one state explains the pool); the new state is named at the latest once the pool holds only its
+    windows, and the verdict never falls back to healthy (docs/health-pipeline.md)."""
+    from hydrowatch.plant.excitation import duty_cycle
+    from hydrowatch.recording import Recording
+    from hydrowatch.training.bundle import ModelBundle
+
+    command = duty_cycle(120.0, seed=5)
+    before, after = (next(simulate_states([s], seconds=120, command=command, seed=7))
+                     for s in ("healthy", "load_alert"))
+    n = 60 * 200
+    recording = Recording(before.t, {k: np.concatenate([before.channels[k][:n], after.channels[k][n:]])
+                                     for k in before.channels}, dict(before.meta))
+    bundle = ModelBundle.load(parity_dir)
+    pooled = [w["state"] for w in score_recording(bundle, recording)["windows"]]
+    alone = [w["state"] for w in score_recording(bundle, recording, smoothing=1)["windows"]]
+    assert pooled[:12] == ["healthy"] * 12 and alone[:12] == ["healthy"] * 12
+    assert alone[12:] == ["load_alert"] * 12
+    assert set(pooled[12:23]) <= {"unknown", "load_alert"} and pooled[23] == "load_alert"

@@ -20,19 +20,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, help="recording file or folder of recordings")
     parser.add_argument("--json", action="store_true", help="one JSON object per file (the contract's format)")
     parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
-    parser.add_argument("--smoothing", type=int, default=1, metavar="N",
+    parser.add_argument("--smoothing", type=int, default=None, metavar="N",
                         help="parity bundles: pool each verdict's evidence over the machine's last N valid windows "
-                             "(default 1: each window alone; 6 settles 13-state duty cycles, 12 the open set)")
+                             "(default 12: what spread severities and the open set need on working commands; "
+                             "1: each window alone). Entropy bundles: 1 only")
 
 
 def run(args: argparse.Namespace) -> int:
     """Score every file; returns 0."""
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files, score_recording
+    from hydrowatch.training.scoring import smoothing_for
 
     bundle = load_bundle(args.model, args.tracking_uri)
+    smoothing = smoothing_for(bundle, args.smoothing)
     for path in recording_files(args.data):
-        result = score_recording(bundle, read_recording(path), args.smoothing)
+        result = score_recording(bundle, read_recording(path), smoothing)
         if args.json:
             print(json.dumps(result), flush=True)
         else:

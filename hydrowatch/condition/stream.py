@@ -11,6 +11,12 @@ from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import NotFittedError
 from hydrowatch.health.verdict import Verdict
 
+POOLED_WINDOWS = 12
+"""Default windows pooled per verdict (60 s at 5 s windows): what 13 states with severities spread in
+their bands need on duty cycles (100 % once the pool is full) and what the open set needs for
+look-alike valve faults in holds (docs/command-invariance.md, round 4). A new state is named after
+about half a pool."""
+
 
 class ConditionStream:
     """Verdicts of one machine whose evidence is pooled over its last ``n_windows`` valid windows.
@@ -26,12 +32,13 @@ class ConditionStream:
     ----------
     model : ConditionModel
         Fitted.
-    n_windows : int, default 6
-        Valid windows pooled (1: each window alone). 6 (30 s) settles 13-state duty cycles; 12
-        (60 s) is what the open set needs for look-alike valve faults (docs/command-invariance.md).
+    n_windows : int, default :data:`POOLED_WINDOWS` (12)
+        Valid windows pooled (1: each window alone). 6 (30 s) settles 13-state duty cycles at
+        trained severities; 12 (60 s) is what severities spread in their bands and the open set need
+        (docs/command-invariance.md).
     """
 
-    def __init__(self, model: ConditionModel, *, n_windows: int = 6) -> None:
+    def __init__(self, model: ConditionModel, *, n_windows: int = POOLED_WINDOWS) -> None:
         if not hasattr(model, "open_set_"):
             raise NotFittedError("model must be a fitted ConditionModel. Call fit(...) or ConditionModel.load(dir).")
         self.model = model

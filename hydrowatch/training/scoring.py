@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import windows_from_recording
+from hydrowatch.condition.stream import POOLED_WINDOWS
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
@@ -44,6 +45,14 @@ def window_truth(recording: Recording, starts: np.ndarray, window: int, trained:
             label = recording.state
         out.append(None if label is None else (label if label in trained else UNKNOWN))
     return out
+
+
+def smoothing_for(bundle: ModelBundle, requested: int | None = None) -> int:
+    """Windows each verdict pools: ``requested``, else :data:`~hydrowatch.condition.stream.POOLED_WINDOWS`
+    for a parity bundle and 1 for an entropy bundle (its verdicts are per window)."""
+    if requested is not None:
+        return requested
+    return POOLED_WINDOWS if bundle.condition is not None else 1
 
 
 def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 1) -> dict[str, Any]:

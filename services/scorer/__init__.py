@@ -55,9 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fleet", default="*", help="fleet to score (default: every fleet)")
     parser.add_argument("--shard", type=parse_shard, default=Shard(), help="score only shard i/n of the machines")
     parser.add_argument("--tick", type=float, default=0.05, help="seconds of chunks gathered per batch (default 0.05)")
-    parser.add_argument("--smoothing", type=int, default=1, metavar="N",
-                        help="parity bundles: each verdict pools the machine's last N valid windows (default 1: "
-                             "each window alone; 6 settles 13-state duty cycles, 12 the open set; delay ~N/2 windows)")
+    parser.add_argument("--smoothing", type=int, default=None, metavar="N",
+                        help="parity bundles: each verdict pools the machine's last N valid windows (default 12: "
+                             "what spread severities and the open set need on working commands; 1: each window "
+                             "alone; a new state is named after ~N/2 windows). Entropy bundles: 1 only")
     parser.add_argument("--stagger", action="store_true",
                         help="parity bundles: start each machine's windows at a phase of its own (from its name), so a "
                              "fleet started together does not close every window at once (costs up to one window of "
@@ -107,9 +108,10 @@ def _publish(publisher: Publisher, bundle: ModelBundle, verdicts: list[WindowVer
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Score until ``stop`` (or ``--seconds``); returns 0."""
     from hydrowatch.training.online import OnlineScorer
+    from hydrowatch.training.scoring import smoothing_for
 
     model = _Model(args)
-    scorer = OnlineScorer(model.bundle, smoothing=args.smoothing, stagger=args.stagger)
+    scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing), stagger=args.stagger)
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     counters = {"verdicts": 0}
     with open_session(settings_from_args(args)) as session:
@@ -127,7 +129,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                 if model.moved():
                     # an entropy bundle cannot pool windows: its verdicts are per window
                     parity = model.bundle.method == "parity"
-                    scorer = OnlineScorer(model.bundle, smoothing=args.smoothing if parity else 1,
+                    scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing)
+                                          if parity else 1,
                                           stagger=args.stagger)
                 if chunks:
                     verdicts = scorer.update(chunks)
