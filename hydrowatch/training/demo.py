@@ -59,7 +59,8 @@ class DemoSettings:
     tracking: str | None = None
     seed: int = 0
     accuracy_seconds: float = 60.0
-    live_seconds: float = 100.0
+    live_seconds: float = 180.0
+    """Simulated seconds of the live fleet: faults appear from 20 s to 60 s, and the scorer pools 12 windows."""
     speed: float = 5.0
 
 
