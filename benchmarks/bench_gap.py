@@ -2,7 +2,8 @@
 
 For every effect: recordings made by the simulator with the effect concealed at a random realistic
 magnitude, on a plant whose calibrated parameters differ from nominal by ±20 %, with sensor noise,
-a 0–4 V filtered-noise command (bipolar −4…4 V for gear_backlash). The analysis starts from the
+a 0–4 V filtered-noise command (``EXCITATION``: bipolar −4…4 V for gear_backlash, 0–5 V for
+entrained_air; ``--volts`` overrides). The analysis starts from the
 nominal parameters. A run is *right* when the report names the effect first and the held-out
 NRMSE of the first located sensor falls by >= 30 % from the calibrated fit ("excess cut": its
 error above the noise ceiling falls by >= 30 %, for effects the calibration had already mostly
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import os
 import time
 from pathlib import Path
 
@@ -52,6 +54,15 @@ MAGNITUDES: dict[str, dict[str, tuple[float, float]]] = {
 }
 """Ranges of the concealed magnitudes (uniform); sensor_lowpass's sensor is drawn from {0, 1, 2}."""
 
+EXCITATION: dict[str, tuple[float, float]] = {"gear_backlash": (-4.0, 4.0), "entrained_air": (0.0, 5.0)}
+"""Command range of the filtered noise where an effect needs more than the default 0–4 V: backlash
+needs motor reversals; entrained air needs the supply pressure to change level (above the pump limit
+at ~3.5 V the supply pressure sags, and free air softens the oil most at low pressure). At 0–4 V the
+calibrated βe absorbs most of the air (see docs/gap.md)."""
+
+DEFAULT_VOLTS = (0.0, 4.0)
+"""Command range of every other case, V."""
+
 REFERENCE_SECONDS = 300.0
 """Target wall time for a 120 s recording, s."""
 
@@ -70,12 +81,21 @@ def plant(rng: np.random.Generator, spread: float = 0.2) -> PlantParameters:
     return p.replace(**{k: getattr(p, k) * rng.uniform(1 - spread, 1 + spread) for k in CALIBRATED})
 
 
-def one_run(effect_ids: tuple[str, ...], seed: int, seconds: float, candidates: tuple[str, ...] | None
-            ) -> tuple[bool, float, dict]:
-    """Simulate, analyse, judge. Returns (right, wall seconds, report)."""
+def excitation(effect_ids: tuple[str, ...]) -> tuple[float, float]:
+    """Command range (V) of a case: the widest of its effects' EXCITATION entries (default 0–4 V)."""
+    ranges = [EXCITATION.get(e, DEFAULT_VOLTS) for e in effect_ids] or [DEFAULT_VOLTS]
+    return min(r[0] for r in ranges), max(r[1] for r in ranges)
+
+
+def one_run(effect_ids: tuple[str, ...], seed: int, seconds: float, candidates: tuple[str, ...] | None,
+            volts: tuple[float, float] | None = None) -> tuple[bool, float, dict]:
+    """Simulate, analyse, judge. Returns (right, wall seconds, report).
+
+    ``volts`` overrides the case's command range (default :func:`excitation`).
+    """
     rng = np.random.default_rng(seed)
     effects = {e: draw_effect(e, rng) for e in effect_ids}
-    volts = (-4.0, 4.0) if "gear_backlash" in effect_ids else (0.0, 4.0)
+    volts = volts or excitation(effect_ids)
     rec = simulate(filtered_noise(seconds, volts, seed=seed), plant(rng), effects, seed=seed)
     start = time.perf_counter()
     report = GapAnalyser(candidates=candidates).fit(rec).report_
@@ -92,10 +112,16 @@ def one_run(effect_ids: tuple[str, ...], seed: int, seconds: float, candidates: 
     return cut >= 0.3, wall, report
 
 
-def _job(task: tuple[str, int, float, tuple[str, ...] | None]) -> dict:
-    case, seed, seconds, candidates = task
+Task = tuple[str, int, float, tuple[str, ...] | None, tuple[float, float] | None]
+
+
+def _job(task: Task) -> dict:
+    case, seed, seconds, candidates, override = task
     ids = () if case == "none" else tuple(case.split("+"))
-    right, wall, report = one_run(ids, seed, seconds, candidates)
+    volts = override or excitation(ids)
+    cpu = time.process_time()
+    right, wall, report = one_run(ids, seed, seconds, candidates, volts)
+    cpu = time.process_time() - cpu
     sensors = [row["sensor"] for row in report["located"] if "relation" not in row]
     cut = excess_cut = None
     if sensors:
@@ -103,19 +129,20 @@ def _job(task: tuple[str, int, float, tuple[str, ...] | None]) -> dict:
                                 report["noise"][sensors[0]])
         cut = 1 - after / before
         excess_cut = 1 - max(after**2 - noise**2, 0.0) / max(before**2 - noise**2, 1e-12)
-    return {"case": case, "seed": seed, "seconds": seconds, "right": bool(right), "wall": round(wall, 1),
+    return {"case": case, "seed": seed, "seconds": seconds, "volts": list(volts), "right": bool(right),
+            "wall": round(wall, 1), "cpu": round(cpu, 1), "load": round(os.getloadavg()[0], 1),
             "named": [e["id"] for e in report["effects"]], "cut": cut, "excess_cut": excess_cut,
             "broken": [r["relation"] for r in report["relations"] if r["broken"]]}
 
 
 def table(rows: list[dict]) -> str:
     """The success table (markdown) of finished runs, one line per case and length."""
-    groups: dict[tuple[str, float], list[dict]] = {}
+    groups: dict[tuple[str, float, str], list[dict]] = {}
     for row in rows:
-        groups.setdefault((row["case"], row["seconds"]), []).append(row)
-    lines = ["| case | s | right | rate | mean wall s | named first | right on excess | false extra "
-             "| relations broken (most often) |", "|---|---|---|---|---|---|---|---|---|"]
-    for (case, seconds), runs in groups.items():
+        groups.setdefault((row["case"], row["seconds"], _volts_label(row)), []).append(row)
+    lines = ["| case | s | V | right | rate | mean wall s | mean CPU s | named first | right on excess | false extra "
+             "| relations broken (most often) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (case, seconds, volts), runs in groups.items():
         ids = [] if case == "none" else case.split("+")
         right = sum(r["right"] for r in runs)
         first = sum(bool(r["named"]) and (not ids or r["named"][0] in ids) for r in runs) if ids else "–"
@@ -128,10 +155,27 @@ def table(rows: list[dict]) -> str:
             key = "+".join(r["broken"]) or "none"
             counts[key] = counts.get(key, 0) + 1
         common = max(counts, key=lambda k: counts[k])
-        lines.append(f"| {case} | {seconds:g} | {right}/{len(runs)} | {right / len(runs):.0%} | "
-                     f"{np.mean([r['wall'] for r in runs]):.0f} | {first} | {excess} | {extra} | "
+        lines.append(f"| {case} | {seconds:g} | {volts} | {right}/{len(runs)} | {right / len(runs):.0%} | "
+                     f"{_mean(runs, 'wall')} | {_mean(runs, 'cpu')} | {first} | {excess} | {extra} | "
                      f"{common} ({counts[common]}) |")
+    loads = [r["load"] for r in rows if "load" in r]
+    if loads:
+        lines.append(f"\nload average (1 min) at the end of each run: {min(loads):.1f}–{max(loads):.1f} on "
+                     f"{os.cpu_count()} cores")
     return "\n".join(lines)
+
+
+def _mean(runs: list[dict], key: str) -> str:
+    """Mean of a row field over runs that have it, or "–"."""
+    values = [r[key] for r in runs if key in r]
+    return f"{np.mean(values):.0f}" if values else "–"
+
+
+def _volts_label(row: dict) -> str:
+    """``"0…4"`` from a row's command range (rows written before the range was recorded: the old rule)."""
+    ids = () if row["case"] == "none" else tuple(row["case"].split("+"))
+    lo, hi = row.get("volts") or ((-4.0, 4.0) if "gear_backlash" in ids else DEFAULT_VOLTS)
+    return f"{lo:g}…{hi:g}"
 
 
 def main() -> None:
@@ -141,6 +185,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--volts", help="command range 'lo,hi' in V for every case (default: EXCITATION / 0,4)")
     parser.add_argument("--candidates", help="comma list of candidate effects (default: all)")
     parser.add_argument("--timing", type=float, help="only time one recording of this many seconds")
     parser.add_argument("--jobs", type=int, default=1, help="recordings analysed at once (processes)")
@@ -151,6 +196,10 @@ def main() -> None:
         print(table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]))
         return
     candidates = tuple(args.candidates.split(",")) if args.candidates else None
+    override = None
+    if args.volts:
+        lo, hi = (float(v) for v in args.volts.split(","))
+        override = (lo, hi)
     if args.timing:
         _, wall, report = one_run(("transport_delay",), 0, args.timing, candidates)
         print(f"{args.timing:g} s recording, transport_delay concealed: {wall:.1f} s wall "
@@ -159,9 +208,15 @@ def main() -> None:
         return
     done = set()
     if args.out and args.out.exists():
-        done = {(r["case"], r["seed"], r["seconds"]) for r in map(json.loads, args.out.read_text().splitlines())}
-    tasks = [(case, seed, args.seconds, candidates) for seed in range(args.first_seed, args.first_seed + args.seeds)
-             for case in args.effects.split(",") if (case, seed, args.seconds) not in done]
+        done = {(r["case"], r["seed"], r["seconds"], _volts_label(r))
+                for r in map(json.loads, args.out.read_text().splitlines())}
+    tasks: list[Task] = []
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        for case in args.effects.split(","):
+            ids = () if case == "none" else tuple(case.split("+"))
+            volts = override or excitation(ids)
+            if (case, seed, args.seconds, f"{volts[0]:g}…{volts[1]:g}") not in done:
+                tasks.append((case, seed, args.seconds, candidates, override))
     rows = []
     with multiprocessing.Pool(args.jobs) as pool:
         for row in pool.imap_unordered(_job, tasks):
