@@ -142,7 +142,7 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
 
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "services.scorer", "--model", str(model), "--fleet", "t",
-                             "--bus-port", str(port), *extra])
+                             "--bus-port", str(port), "--no-stagger", *extra])
     got: dict[str, list] = {}
     try:
         with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
@@ -377,3 +377,15 @@ def test_an_abrupt_fault_reads_unknown_at_once_and_is_named_when_the_pool_has_tu
     assert pooled[:12] == ["healthy"] * 12 and alone[:12] == ["healthy"] * 12
     assert alone[12:] == ["load_alert"] * 12
     assert set(pooled[12:23]) <= {"unknown", "load_alert"} and pooled[23] == "load_alert"
+
+
+def test_the_scorer_service_staggers_windows_by_default() -> None:
+    """A restart or a model switch starts every machine at once: phases from the machine names keep the
+    window closings spread (docs/health-pipeline.md, scorer speed)."""
+    import argparse
+
+    from services.scorer import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert parser.parse_args([]).stagger is True and parser.parse_args(["--no-stagger"]).stagger is False

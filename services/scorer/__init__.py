@@ -59,10 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="parity bundles: each verdict pools the machine's last N valid windows (default 12: "
                              "what spread severities and the open set need on working commands; 1: each window "
                              "alone; a new state is named after ~N/2 windows). Entropy bundles: 1 only")
-    parser.add_argument("--stagger", action="store_true",
+    parser.add_argument("--stagger", action=argparse.BooleanOptionalAction, default=True,
                         help="parity bundles: start each machine's windows at a phase of its own (from its name), so a "
-                             "fleet started together does not close every window at once (costs up to one window of "
-                             "samples after each (re)start)")
+                             "fleet started together, or every machine after a restart or a model switch, does not "
+                             "close every window at once (default on; costs up to one window of samples after each "
+                             "(re)start; --no-stagger: windows from each machine's first sample)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
