@@ -31,7 +31,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +134,26 @@ def watch(port: int, children: list[Child], rows: list[tuple[str, dict]], stop: 
             rows.extend((m.key.machine, row) for m in beats.recv_many(timeout=0.05) for row in m.batch.to_pylist())
 
 
+def missing_chunks(per_machine: dict[str, np.ndarray], n_expected: int, args: argparse.Namespace) -> list:
+    """The most common runs of missing samples, as (first chunk, last chunk, samples missing) -> machines."""
+    per_chunk = max(1, int(round(args.chunk * RATE_HZ)))
+    runs: Counter = Counter()
+    for t in per_machine.values():
+        lost = np.setdiff1d(np.arange(n_expected), np.round(t * RATE_HZ).astype(int))
+        if lost.size:
+            runs[(int(lost[0]) // per_chunk, int(lost[-1]) // per_chunk, int(lost.size))] += 1
+    return runs.most_common(6)
+
+
+def recorder_counters(rows: list[tuple[str, dict]]) -> dict[str, dict]:
+    """Each recorder's last heartbeat counters (messages in, out, undecodable)."""
+    last: dict[str, dict] = {}
+    for service_id, row in rows:
+        if row["service"] == "record":
+            last[service_id] = {k: row.get(k) for k in ("messages_in", "messages_out", "messages_undecodable")}
+    return last
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=1000)
@@ -207,6 +227,10 @@ def main() -> None:
           f"publishers={args.plants} recorders={args.recorders}")
     print(f"published samples={published:,} recorded={samples:,} lost={published - samples} messages={messages:,} "
           f"machines with every sample exactly once={complete} of {args.machines}")
+    if published != samples:  # where the loss happened: before the recorder, at validation, or in the files
+        print(f"  missing chunks (first, last, samples) -> machines: {missing_chunks(per_machine, n_expected, args)}")
+        for service_id, b in sorted(recorder_counters(rows).items()):
+            print(f"  {service_id}: last heartbeat {b}")
     print(f"throughput={rate:,.0f} samples/s over {done - first:.2f} s (first receive -> last write)  "
           f"ratio to reference {REFERENCE_SAMPLES_PER_S:,.0f}: {rate / REFERENCE_SAMPLES_PER_S:.2f}")
     for name, cpu in ((args.source, plant_cpu), ("recorder", recorder_cpu)):
