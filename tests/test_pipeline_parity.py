@@ -13,7 +13,6 @@ from hydrowatch.io import write_recording
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.training.engines import RawWindow
 from hydrowatch.training.online import Chunk, OnlineScorer
 from hydrowatch.training.scoring import score_recording
 
@@ -88,15 +87,6 @@ def test_parity_stream_equals_batch_and_breaks_are_invalid(parity: dict) -> None
     out = scorer.update([Chunk("m", r.t[4200:4300], {**{c: r[c][4200:4300] for c in COLUMNS}, "speed": speed})])
     assert [v.verdict.reason for v in out] == [f"NaN in speed at t={r.t[4210]:.3f} s"]
     assert out[0].start_s == pytest.approx(r.t[4100])
-
-
-def test_raw_window_overlapping_hop() -> None:
-    w = RawWindow(4, 2, 1)
-    w.update(np.arange(5.0)[:, None])
-    w.update(np.arange(5.0, 9.0)[:, None])
-    closed = w.drain()
-    assert [c.start for c in closed] == [0, 2, 4] and closed[2].samples[:, 0].tolist() == [4.0, 5.0, 6.0, 7.0]
-    assert w.drain() == [] and w.n_windows == 3
 
 
 def test_scorer_service_with_a_parity_bundle(parity: dict) -> None:

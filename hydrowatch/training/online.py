@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +47,7 @@ from hydrowatch.training.chunks import (
     chunks_from_batches,
     plan_chunk,
 )
-from hydrowatch.training.engines import ParityEngine, RawWindow, engine_for
+from hydrowatch.training.engines import EntropyEngine, ParityEngine, engine_for
 from hydrowatch.training.parity_online import ParityStreams
 from hydrowatch.training.reference import StreamState
 
@@ -57,7 +57,7 @@ __all__ = ["DT", "TOLERANCE", "Chunk", "ChunkBatch", "OnlineScorer", "WindowVerd
 @dataclass
 class _Stream:
     states: list[StreamState]
-    window: MachineWindow | RawWindow
+    window: MachineWindow
     next_t: float | None = None
     start_t: float | None = None
     """Time of the first sample of the stream (warm-up included)."""
@@ -97,16 +97,18 @@ class OnlineScorer:
         self.keep = keep
         self.smoothing = smoothing
         self._streams: dict[str, _Stream] = {}
-        self._engine = engine_for(bundle, keep=keep)
-        self._columns = self._engine.columns
+        self._samples = 0
+        engine = engine_for(bundle, keep=keep)
+        self._columns = engine.columns
         self._parity: ParityStreams | None = None
-        if isinstance(self._engine, ParityEngine):
-            self._parity = ParityStreams(self._engine, (len(bundle.kl_rows), len(bundle.states)),
+        if isinstance(engine, ParityEngine):
+            self._parity = ParityStreams(engine, (len(bundle.kl_rows), len(bundle.states)),
                                          smoothing=smoothing, batch=batch, stagger=stagger)
-        elif smoothing != 1:
+            return
+        self._engine: EntropyEngine = engine  # the per-machine path below is the entropy method's
+        if smoothing != 1:
             raise ParameterError(f"smoothing must be 1 for an entropy bundle. Got {smoothing!r}; pooling windows is "
                                  "the parity method's (train with --method parity).")
-        self._samples = 0
 
     @property
     def samples(self) -> int:
@@ -243,7 +245,7 @@ class OnlineScorer:
     def _collect(self, machine: str, closed: list[tuple[str, Any, float]]) -> None:
         stream = self._streams[machine]
         if stream.window.n_windows > stream.reported and stream.fed_t is not None:
-            closed.extend((machine, r, stream.fed_t) for r in self._engine.collect(cast(Any, stream.window),
+            closed.extend((machine, r, stream.fed_t) for r in self._engine.collect(stream.window,
                                                                                   stream.reported))
             stream.reported = stream.window.n_windows
 
