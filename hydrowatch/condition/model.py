@@ -6,8 +6,10 @@ reference-model prediction errors. The decision is either
 - :class:`ParityRule` (default): the state whose physics explains the window best, the smallest
   sum over relations of log F[r, k] + w·log F_level[r, k] (a generalised likelihood ratio for
   Gaussian residuals, the level-box term a soft prior on the trained severity that breaks ties
-  of look-alike states in holds); probabilities are softmax(−score / T) with T fitted on the
-  training windows (temperature scaling, as the health classifier does); or
+  of look-alike states in holds); probabilities are softmax(−score / T + log π) with T fitted
+  on the training windows (temperature scaling, as the health classifier does) but not below the
+  relations' model error, and π a prior that gives ``healthy`` even odds against all faults
+  together (a fault has to show itself); or
 - a :class:`hydrowatch.health.classifier.HealthClassifier` (the study's network, section 6.5) on
   the same features: it fits the training command perfectly but learns the pattern of the
   identification experiment's scores, which the bench shows does not carry to holds and ramps.
@@ -46,29 +48,56 @@ with the default."""
 
 
 class ParityRule:
-    """Nearest health state by parity scores: argmin_k Σ_r (log F[r, k] + w·log F_level[r, k]).
+    """Nearest health state by parity scores: argmax_k log π_k − Σ_r (log F[r, k] + w·log F_level[r, k]) / T.
 
     ``X`` is :meth:`ConditionFeatures.transform_with_levels`: band-box ratios then level-box
     ratios, each relation-major.
+
+    Why the two calibration terms (docs/command-invariance.md, "Calibration"):
+
+    - ``min_temperature``: the filtered noise of the identification experiment separates the
+      states perfectly, so the fitted T falls to its floor (0.02), where a score difference of
+      0.1 reads as 150:1 odds; in holds the true state's relations carry 5–15 % of model error in
+      MSE (log F ≈ 0.05–0.15) and look-alikes differ by as little, so wrong verdicts came with
+      p > 0.99. T stays at or above this floor: a ratio difference inside the model error is
+      not strong evidence.
+    - ``healthy_prior``: in a window that does not load a part (a low-demand stretch), the
+      faults that only show under load explain it exactly as well as ``healthy`` (equal scores);
+      a uniform prior then gave the healthy verdict p = 1/7 and left the choice to the order of
+      the states. With π(healthy) = ``healthy_prior`` and the rest spread evenly over the faults,
+      ``healthy`` wins such ties by its prior, whatever the order of the states.
 
     Parameters
     ----------
     level_weight : float, default 1.0
         w, the weight of the level-box ratios (0: band boxes only).
+    min_temperature : float, default 0.1
+        Floor of the fitted softmax temperature T (units of summed log MSE ratios).
+    healthy_prior : float or None, default 0.5
+        Prior probability of ``healthy`` (the faults share the rest evenly); None, or no
+        ``healthy`` among the states: a uniform prior.
 
     Attributes
     ----------
     classes_ : ndarray of str, shape (n_states,)
     temperature_ : float
-        Softmax temperature of the probabilities, fitted on the training windows.
+        Softmax temperature of the probabilities: fitted on the training windows, at least ``min_temperature``.
     """
 
-    def __init__(self, *, level_weight: float = 1.0) -> None:
+    def __init__(self, *, level_weight: float = 1.0, min_temperature: float = 0.1,
+                 healthy_prior: float | None = 0.5) -> None:
+        if not min_temperature > 0.0:
+            raise ParameterError(f"min_temperature must be > 0. Got {min_temperature!r}; 0.1 is the default.")
+        if healthy_prior is not None and not 0.0 < healthy_prior < 1.0:
+            raise ParameterError(f"healthy_prior must be in (0, 1) or None. Got {healthy_prior!r}; 0.5 is the default.")
         self.level_weight = level_weight
+        self.min_temperature = min_temperature
+        self.healthy_prior = healthy_prior
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters."""
-        return {"level_weight": self.level_weight}
+        return {"level_weight": self.level_weight, "min_temperature": self.min_temperature,
+                "healthy_prior": self.healthy_prior}
 
     def _logits(self, X: np.ndarray) -> np.ndarray:
         x = np.asarray(X, dtype=np.float64)
@@ -77,6 +106,15 @@ class ParityRule:
             raise DataError(f"X must have shape (n, 2 * n_relations * {n}) (band then level ratios). Got {x.shape}.")
         band, level = np.split(-np.log(np.maximum(x, 1.0)).reshape(x.shape[0], -1, n), 2, axis=1)
         return band.sum(axis=1) + self.level_weight * level.sum(axis=1)
+
+    def log_prior(self) -> np.ndarray:
+        """log π per state, shape (n_states,) (class docstring)."""
+        n = len(self.classes_)
+        healthy = self.classes_ == "healthy"
+        if self.healthy_prior is None or not healthy.any() or n == 1:
+            return np.full(n, -np.log(n))
+        prior = np.where(healthy, self.healthy_prior, (1.0 - self.healthy_prior) / (n - 1))
+        return cast(np.ndarray, np.log(prior))
 
     def fit(self, X: np.ndarray, y: Sequence[str] | np.ndarray, classes: Sequence[str]) -> ParityRule:
         """Fit the temperature on windows ``X`` (n, n_relations * n_states) of states ``y``; returns self."""
@@ -87,14 +125,14 @@ class ParityRule:
         if unknown:
             raise DataError(f"every label in y must be one of classes. Got unknown labels {unknown}.")
         target = np.array([index[v] for v in labels.tolist()], dtype=np.int64)
-        self.temperature_ = fit_temperature(self._logits(X), target)
+        self.temperature_ = max(fit_temperature(self._logits(X), target), float(self.min_temperature))
         return self
 
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """Probabilities, shape (n, n_states); NaN rows stay NaN."""
         if not hasattr(self, "temperature_"):
             raise NotFittedError("ParityRule must be fitted before use. Call fit(X, y, classes) first.")
-        z = self._logits(X) / self.temperature_
+        z = self._logits(X) / self.temperature_ + self.log_prior()
         z = z - np.max(np.nan_to_num(z, nan=0.0), axis=1, keepdims=True)
         e = np.exp(z)
         return e / e.sum(axis=1, keepdims=True)
@@ -109,9 +147,10 @@ class ParityRule:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ParityRule:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`. A rule saved before the prior existed (no ``healthy_prior`` in its
+        params) loads with a uniform prior and its saved temperature: its probabilities stay as they were."""
         try:
-            rule = cls(**data.get("params", {}))
+            rule = cls(**{"healthy_prior": None, **data.get("params", {})})
             rule.classes_ = np.asarray(data["classes"], dtype=str)
             rule.temperature_ = float(data["temperature"])
         except (KeyError, TypeError, ValueError) as exc:

@@ -127,4 +127,6 @@ def run_metrics(result: TrainingResult) -> dict[str, float]:
                 metrics[f"{key}.{sensor}"] = summary["validation"][key]
         metrics[f"acf_inside.{sensor}"] = r["correlations"]["acf_inside"]
     metrics.update({f"recall.{s}": v for s, v in ev["per_class_recall"].items()})
+    if "rule_temperature" in ev:
+        metrics["rule_temperature"] = ev["rule_temperature"]
     return metrics

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
+from hydrowatch.condition.model import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
 from hydrowatch.health.verdict import UNKNOWN
@@ -85,6 +86,8 @@ def train_parity(grouped: Mapping[str, list[Recording]], settings: TrainingSetti
     scores = {s: model.features_.transform(test[s]) if test[s].shape[0] else
               np.empty((0, len(model.features_.feature_names_))) for s in states}
     evaluation = evaluate(model, test)
+    if isinstance(model.decision_, ParityRule):  # logged: the fitted temperature, floored (docs/command-invariance.md)
+        evaluation["rule_temperature"] = model.decision_.temperature_
     n_rel = len(model.features_.relations_)
     window_scores = {s: x.reshape(x.shape[0], n_rel, len(states)) for s, x in scores.items()}
     manifest = {
