@@ -6,9 +6,10 @@ and the extended 13), then scores separately simulated recordings: filtered nois
 are spread inside their bands. For each set, per window and pooled over a machine's last 12
 windows (the scorer's default), it prints the accuracy of the decision, the expected calibration
 error (ECE, 15 bins), the share of wrong verdicts that carried p > 0.99, and the mean p of
-healthy windows; once for the rule as it was (uniform prior, fitted temperature: 0.02, the floor
-of ``fit_temperature``) and once as it is (``ParityRule`` defaults: temperature floor 0.1, healthy
-prior 0.5). Accuracy counts the decision alone (the open-set rule is not applied here).
+healthy windows; for the rule as it was (fitted temperature: 0.02, the floor of
+``fit_temperature``), as it is (``ParityRule`` defaults: temperature floor 0.1) and with the
+optional healthy prior (0.5). Accuracy counts the decision alone (the open-set rule is not
+applied here).
 
 Run: ``python benchmarks/bench_calibration.py [--train-seconds 200] [--test-seconds 100]``.
 """
@@ -78,13 +79,15 @@ def main() -> None:
         model = ConditionModel().fit(train)
         now = model.decision_
         assert isinstance(now, ParityRule)
-        before = ParityRule(healthy_prior=None, min_temperature=0.02).fit(
-            *_training_rows(model, train), classes=now.classes_.tolist())
+        rows = _training_rows(model, train)
+        before = ParityRule(min_temperature=0.02).fit(*rows, classes=now.classes_.tolist())
+        prior = ParityRule(healthy_prior=0.5).fit(*rows, classes=now.classes_.tolist())
         print(f"\n=== {len(states)} states: temperature fitted {before.temperature_:.3f}, used {now.temperature_:.3f}")
         for name, machines in test_sets(states, args.test_seconds).items():
             print(f"  {name}")
             print(f"    before: {report(before, model, machines)}")
-            print(f"    now:    {report(now, model, machines)}", flush=True)
+            print(f"    now:    {report(now, model, machines)}")
+            print(f"    prior:  {report(prior, model, machines)}", flush=True)
 
 
 def _training_rows(model: ConditionModel, train: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

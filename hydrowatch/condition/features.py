@@ -173,7 +173,9 @@ class ConditionFeatures:
         if "healthy" not in windows_by_state:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.nominal_ = p
-        self.states_ = tuple(windows_by_state)
+        # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
+        # the faults that only show under load tie with healthy (ParityRule)
+        self.states_ = ("healthy", *(s for s in windows_by_state if s != "healthy"))
         filled = E.fill_faults(self.sensors)
         # A fault whose parameter fills a missing sensor sits at its named level (its own relation is gone).
         self.levels_ = {state: level_severity(f, lvl, p) for state in self.states_
