@@ -135,21 +135,26 @@ def watch(port: int, children: list[Child], rows: list[tuple[str, dict]], stop: 
 
 
 def missing_chunks(per_machine: dict[str, np.ndarray], n_expected: int, args: argparse.Namespace) -> list:
-    """The most common runs of missing samples, as (first chunk, last chunk, samples missing) -> machines."""
+    """The most common runs of missing samples, as ((first chunk, last chunk, samples missing), machines,
+    first and last machine): machines consecutive in publishing order point at one lost transport batch."""
     per_chunk = max(1, int(round(args.chunk * RATE_HZ)))
     runs: Counter = Counter()
-    for t in per_machine.values():
+    machines: dict[tuple, list[str]] = defaultdict(list)
+    for topic, t in per_machine.items():
         lost = np.setdiff1d(np.arange(n_expected), np.round(t * RATE_HZ).astype(int))
         if lost.size:
-            runs[(int(lost[0]) // per_chunk, int(lost[-1]) // per_chunk, int(lost.size))] += 1
-    return runs.most_common(6)
+            run = (int(lost[0]) // per_chunk, int(lost[-1]) // per_chunk, int(lost.size))
+            runs[run] += 1
+            machines[run].append(topic.split("/")[2])
+    return [(run, n, min(machines[run]), max(machines[run])) for run, n in runs.most_common(6)]
 
 
-def recorder_counters(rows: list[tuple[str, dict]]) -> dict[str, dict]:
-    """Each recorder's last heartbeat counters (messages in, out, undecodable)."""
+def last_counters(rows: list[tuple[str, dict]]) -> dict[str, dict]:
+    """Each plant's and recorder's last heartbeat counters (messages in, out, undecodable): a plant that
+    counted every message out and a recorder that counted fewer in lost them on the bus."""
     last: dict[str, dict] = {}
     for service_id, row in rows:
-        if row["service"] == "record":
+        if row["service"] in ("record", "plant"):
             last[service_id] = {k: row.get(k) for k in ("messages_in", "messages_out", "messages_undecodable")}
     return last
 
@@ -228,8 +233,9 @@ def main() -> None:
     print(f"published samples={published:,} recorded={samples:,} lost={published - samples} messages={messages:,} "
           f"machines with every sample exactly once={complete} of {args.machines}")
     if published != samples:  # where the loss happened: before the recorder, at validation, or in the files
-        print(f"  missing chunks (first, last, samples) -> machines: {missing_chunks(per_machine, n_expected, args)}")
-        for service_id, b in sorted(recorder_counters(rows).items()):
+        print("  missing chunks ((first, last, samples), machines, first machine, last machine): "
+              f"{missing_chunks(per_machine, n_expected, args)}")
+        for service_id, b in sorted(last_counters(rows).items()):
             print(f"  {service_id}: last heartbeat {b}")
     print(f"throughput={rate:,.0f} samples/s over {done - first:.2f} s (first receive -> last write)  "
           f"ratio to reference {REFERENCE_SAMPLES_PER_S:,.0f}: {rate / REFERENCE_SAMPLES_PER_S:.2f}")
