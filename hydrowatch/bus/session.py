@@ -179,7 +179,7 @@ def free_port(host: str = "127.0.0.1") -> int:
 def open_session(settings: BusSettings | None = None) -> zenoh.Session:
     """Open a zenoh session; use it as ``with open_session(s) as session:`` so it always closes.
 
-    zenoh's own log (links opening and closing, congestion) goes to stderr when ``RUST_LOG`` is set,
+    zenoh's own log (links opening and closing, congestion) goes to standard output when ``RUST_LOG`` is set,
     e.g. ``RUST_LOG=zenoh=debug``; otherwise it stays off.
     """
     if os.environ.get("RUST_LOG"):
