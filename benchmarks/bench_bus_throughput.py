@@ -155,7 +155,8 @@ def last_counters(rows: list[tuple[str, dict]]) -> dict[str, dict]:
     last: dict[str, dict] = {}
     for service_id, row in rows:
         if row["service"] in ("record", "plant"):
-            last[service_id] = {k: row.get(k) for k in ("messages_in", "messages_out", "messages_undecodable")}
+            last[service_id] = {k: row.get(k) for k in ("messages_in", "messages_out", "messages_undecodable",
+                                                        "messages_dropped")}
     return last
 
 
@@ -167,6 +168,9 @@ def main() -> None:
     parser.add_argument("--recorders", type=int, default=1, help="recorder processes (shards of the fleet)")
     parser.add_argument("--chunk", type=float, default=0.1, help="seconds of samples per message (default 0.1)")
     parser.add_argument("--source", choices=("plant", "synthetic"), default="plant")
+    parser.add_argument("--drop-every", type=int, default=0, metavar="N",
+                        help="the plant leaves every N-th message off the bus (fault injection): the recorders "
+                             "must fetch them from its history")
     parser.add_argument("--scratch", type=Path, default=None,
                         help="folder for the temporary recordings (default: the system's temporary folder)")
     parser.add_argument("--publish-shard", default=None, help=argparse.SUPPRESS)
@@ -195,7 +199,7 @@ def main() -> None:
                       "--bus-port", str(port)]
             if args.source == "plant":
                 argv = [sys.executable, "-m", "services.plant", "--fleet", FLEET, "--speed", "inf",
-                        "--wait-subscribers", "60", *common]
+                        "--wait-subscribers", "60", "--drop-every", str(args.drop_every), *common]
                 plants = [Child([*argv, "--shard", f"{i}/{args.plants}"]) for i in range(args.plants)]
             else:
                 argv = [sys.executable, __file__, *common]
@@ -232,6 +236,14 @@ def main() -> None:
           f"publishers={args.plants} recorders={args.recorders}")
     print(f"published samples={published:,} recorded={samples:,} lost={published - samples} messages={messages:,} "
           f"machines with every sample exactly once={complete} of {args.machines}")
+    counters = last_counters(rows)
+    recovered = sum((c["messages_out"] or 0) - (c["messages_in"] or 0)
+                    for k, c in counters.items() if k.startswith("record"))
+    if recovered:  # the bus lost these (or --drop-every left them off): fetched from the plants' history
+        print(f"  chunks the recorders fetched from the plants' history: {recovered}")
+    if args.drop_every:
+        print(f"  left off the bus on purpose: every {args.drop_every}th message; recorders' last heartbeats "
+              f"(messages_dropped = chunks not recovered): {counters}")
     if published != samples:  # where the loss happened: before the recorder, at validation, or in the files
         print("  missing chunks ((first, last, samples), machines, first machine, last machine): "
               f"{missing_chunks(per_machine, n_expected, args)}")

@@ -168,6 +168,17 @@ class Message:
             return None
         return float(batch.column("t")[0].as_py())
 
+    def time_span(self) -> tuple[float, float, int] | None:
+        """(``t`` of the first row s, of the last row s, rows); None without a ``t`` column or rows."""
+        layout = self.layout
+        if layout is not None and layout.first_t is not None:
+            return layout.start_time(self.payload), layout.end_time(self.payload), layout.rows  # type: ignore[return-value]
+        batch = self.batch
+        if "t" not in batch.schema.names or not batch.num_rows:
+            return None
+        t = batch.column("t")
+        return float(t[0].as_py()), float(t[-1].as_py()), batch.num_rows
+
     def __repr__(self) -> str:
         return f"Message({self.key}, {len(self.payload)} bytes, received {self.receive_time_ns})"
 

@@ -109,6 +109,8 @@ class Layout(NamedTuple):
     """Bytes of the whole payload."""
     first_t: int | None
     """Byte offset of the first value of a float64 column ``t`` (None: no such column or no rows)."""
+    rows: int = 0
+    """Rows of the batch (part of the head, so the same for every payload of this layout)."""
 
     def read(self, data: bytes | memoryview | pa.Buffer) -> pa.RecordBatch:
         """The record batch of a payload that :func:`check_payload` accepted with this layout."""
@@ -120,6 +122,10 @@ class Layout(NamedTuple):
     def start_time(self, data: bytes | memoryview) -> float | None:
         """``t`` of the first row, s, read from the body (no batch built); None without it."""
         return None if self.first_t is None else _F64(data, self.first_t)[0]
+
+    def end_time(self, data: bytes | memoryview) -> float | None:
+        """``t`` of the last row, s, read from the body (no batch built); None without it."""
+        return None if self.first_t is None else _F64(data, self.first_t + 8 * (self.rows - 1))[0]
 
 
 def check_payload(data: bytes | memoryview | pa.Buffer, expected: pa.Schema, source: str | None = None) -> Layout:
@@ -193,7 +199,7 @@ def _check(
             if nulls:
                 name = known.schema.names[index]
                 raise DataError(f"{schema_name(expected)} field '{name}' must have no nulls. Got {nulls}.", source)
-    layout = Layout(expected, batch.schema, len(prefix or b""), size, None)
+    layout = Layout(expected, batch.schema, len(prefix or b""), size, None, batch.num_rows)
     if head is not None and prefix is not None:
         layout = layout._replace(first_t=_first_t(data, len(prefix), len(head), batch))
         if len(_LAYOUTS) >= _LAYOUT_CACHE_SIZE:

@@ -16,10 +16,12 @@ import math
 import threading
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 
 import numpy as np
 
-from hydrowatch.bus import Publisher, Shard, StatusReporter, add_bus_arguments, key, open_session, parse_shard
+from hydrowatch.bus import Publisher, Shard, StatusReporter, add_bus_arguments, key, key_expr, open_session, parse_shard
+from hydrowatch.bus.history import ChunkHistory, HistoryServer
 from hydrowatch.bus.service import LINGER_S, service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.errors import ParameterError
@@ -66,6 +68,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--machine-tokens", action="store_true",
                         help="also declare a liveliness token per machine (hydro/<fleet>/<machine>/status); "
                              "costs every subscriber of the fleet ~0.1 µs per machine per message (docs/bus.md)")
+    parser.add_argument("--history", type=float, default=5.0, metavar="SECONDS",
+                        help="keep each machine's last chunks this long and serve them to subscribers that missed "
+                             "some (hydrowatch.bus.history; 0: off; default 5)")
+    parser.add_argument("--drop-every", type=int, default=0, metavar="N",
+                        help="fault injection: leave every N-th message off the bus (it stays in the history), "
+                             "to exercise recorders' recovery (default 0: none)")
     parser.add_argument("--no-noise", action="store_true", help="switch sensor noise off")
     parser.add_argument("--no-label", action="store_true", help="leave the per-sample 'state' column out")
     add_bus_arguments(parser)
@@ -79,6 +87,8 @@ def _check(args: argparse.Namespace) -> int:
         raise ParameterError(f"--chunk must be at least one sample (1/{SAMPLE_RATE_HZ:g} s). Got {args.chunk}.")
     if not args.speed > 0:
         raise ParameterError(f"--speed must be > 0 (or inf). Got {args.speed}.")
+    if not args.history >= 0 or args.drop_every < 0:
+        raise ParameterError(f"--history and --drop-every must be >= 0. Got {args.history} and {args.drop_every}.")
     return n
 
 
@@ -103,8 +113,11 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     command = FilteredNoiseCommand(len(mine), args.volts, seed=args.seed + 1)
     keys = [key(args.fleet, m, "sensors") for _, m in mine]
     encoder = FleetEncoder(CHANNELS, None if args.no_label else labels)
-    samples = 0
-    with open_session(settings_from_args(args)) as session:
+    samples = dropped = 0
+    depth = int(math.ceil(args.history / args.chunk))
+    history = ChunkHistory(depth) if depth else None
+    with open_session(settings_from_args(args)) as session, \
+            (HistoryServer(session, key_expr(args.fleet), history) if history else nullcontext()):
         publisher = Publisher(session, express=args.express)
         reporter = StatusReporter(session, args.fleet, NAME, lambda: {"messages_out": publisher.messages_out},
                                   machines=[m for _, m in mine] if args.machine_tokens else ())
@@ -123,7 +136,14 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                 # encode the whole step first, then publish back to back (~1.4 µs per put): the
                 # publish times of a burst stay close together instead of spreading over the encoding
                 payloads = encoder.encode(out["t"], out)
+                if history is not None:
+                    sent = time.time_ns()
+                    for k, start, payload in zip(keys, out["t"][:, 0].tolist(), payloads):
+                        history.add(k, start, payload, sent)
                 for k, payload in zip(keys, payloads):
+                    if args.drop_every and (publisher.messages_out + dropped + 1) % args.drop_every == 0:
+                        dropped += 1  # fault injection (--drop-every): in the history, not on the bus
+                        continue
                     publisher.put_payload(k, payload)
                 samples += n * len(keys)
                 if math.isfinite(args.speed):
@@ -138,7 +158,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             steps.close()
             reporter.stop()
             publisher.close()
-    event(log, "plant stopped", messages=publisher.messages_out, samples=samples, simulated_s=round(sim.time, 3),
+    event(log, "plant stopped", messages=publisher.messages_out, dropped_on_purpose=dropped, samples=samples,
+          served_from_history=history.served if history else 0, simulated_s=round(sim.time, 3),
           cpu_simulation_s=round(steps.cpu_s, 2), cpu_publish_s=round(publish_cpu_s, 2))
     return 0
 

@@ -4,7 +4,10 @@ Every received payload is stored unchanged (Arrow IPC, one MCAP channel per key)
 decoded against its topic's schema; undecodable messages are counted and skipped. Files rotate
 by size or time; chunks close every ``--chunk-size`` bytes or ``--flush`` seconds, so a
 ``kill -9`` loses at most that; SIGTERM/SIGINT drains the queue, finishes every file and exits.
-``--shard i/n`` records only that shard of the fleet.
+``--shard i/n`` records only that shard of the fleet. A gap in a machine's sensor chunks is asked
+for from the publisher's history and the recovered chunks are written too
+(:mod:`hydrowatch.bus.recovery`); what no publisher could resend is logged and counted in the
+heartbeat's ``messages_dropped`` (chunks), with status ``degraded``.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hydrowatch.bus import Shard, StatusReporter, Subscriber, add_bus_arguments, key_expr, open_session, parse_shard
+from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.errors import ParameterError
@@ -26,6 +30,9 @@ NAME = "record"
 HELP = "record key expressions of the bus into per-machine MCAP files, rotated by size or time"
 QUIET_S = 0.2
 """On stop, the recorder keeps receiving until no message came for this long (at most ``--drain`` s), s."""
+TAILS_AFTER_S = 0.5
+"""When no message came for this long after some did, the recorder asks the publishers' history for every
+machine's tail (a run's last chunks have no later chunk to show they are missing), s."""
 BURST = 1000
 """Messages the recorder takes from its queue at a time (one clock read, one loop, per burst)."""
 log = get_logger("services.recorder")
@@ -46,6 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     parser.add_argument("--drain", type=float, default=20.0,
                         help="on stop, keep recording what is still arriving for up to this many seconds (default 20)")
+    parser.add_argument("--no-recovery", action="store_true",
+                        help="do not ask publishers' history for chunks missing from a machine's stream")
     parser.add_argument("--heartbeat", type=float, default=1.0, metavar="SECONDS",
                         help="seconds between status heartbeats with the message counters (default 1)")
     add_bus_arguments(parser)
@@ -66,33 +75,56 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     fleet = args.fleet if args.fleet != "*" else "all"
     with open_session(settings_from_args(args)) as session:
         subscriber = Subscriber(session, keys, shard=args.shard)
+        recovery = None if args.no_recovery else GapRecovery(session)
         reporter = StatusReporter(session, fleet, NAME, lambda: {
             "messages_in": subscriber.received, "messages_out": files.messages,
             "messages_undecodable": subscriber.undecodable_total,
+            "messages_dropped": recovery.chunks_lost if recovery else 0,
         }, interval=args.heartbeat)
         try:
             reporter.start()
             reporter.status = "running"
             event(log, "recorder started", keys=",".join(keys), out=args.out, shard=str(args.shard))
             next_tick = time.monotonic() + args.flush
+            last_message, tails_asked = time.monotonic(), True
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                files.write_many(subscriber.recv_many(BURST, timeout=min(0.1, args.flush)))
+                received = subscriber.recv_many(BURST, timeout=min(0.1, args.flush))
+                if recovery is None:
+                    files.write_many(received)
+                else:
+                    files.write_many(recovery.observe(received))
+                    files.write_many(recovery.collect())
+                    if recovery.samples_lost:
+                        reporter.status = "degraded"
+                    if received:
+                        last_message, tails_asked = time.monotonic(), False
+                    elif not tails_asked and time.monotonic() - last_message > TAILS_AFTER_S:
+                        recovery.ask_tails()
+                        tails_asked = True
                 if time.monotonic() >= next_tick:
                     files.tick()
                     next_tick = time.monotonic() + args.flush
+            last_message, tails_asked = time.monotonic(), True
             reporter.status = "draining"
             # what is still on its way arrives within a moment: keep receiving until the bus is quiet
             give_up = time.monotonic() + args.drain
             while time.monotonic() < give_up and (messages := subscriber.recv_many(BURST, timeout=QUIET_S)):
-                files.write_many(messages)
+                files.write_many(recovery.observe(messages) if recovery else messages)
             subscriber.close()
-            files.write_many(subscriber.drain())
+            last = list(subscriber.drain())
+            files.write_many(recovery.observe(last) if recovery else last)
+            if recovery is not None:
+                if not tails_asked:
+                    recovery.ask_tails()
+                files.write_many(recovery.wait())
         finally:
             subscriber.close()
             files.close()
             reporter.stop()
+    gaps = {} if recovery is None else {"gaps": recovery.gaps, "chunks_recovered": recovery.chunks_recovered,
+                                        "samples_lost": recovery.samples_lost}
     event(log, "recorder stopped", messages=files.messages, files=len(files.files_written),
-          undecodable=subscriber.undecodable_total, outside_shard=subscriber.outside_shard)
+          undecodable=subscriber.undecodable_total, outside_shard=subscriber.outside_shard, **gaps)
     return 0
 
 
