@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from hydrowatch.bus.service import freeze_heap
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.io.codec import decode_batch, encode_batch, sensor_chunk_from_arrays
 from hydrowatch.plant.fleet import simulate_states
@@ -127,6 +128,7 @@ def measure(bundle: ModelBundle, payloads: list[list[tuple[str, bytes]]], stagge
     steps = _live(payloads, phases, stagger)
     first = phases if stagger or phased else 0  # phased: the first window of each machine starts within 5 s
     scorer = OnlineScorer(bundle, smoothing=smoothing, stagger=phased)
+    freeze_heap()  # as the scorer service does once its model is loaded
     cpu_lat, wall_lat, verdicts, cpu, wall, samples = [], [], 0, 0.0, 0.0, 0
     for k, step in enumerate(steps):
         c0, w0 = time.thread_time(), time.perf_counter()

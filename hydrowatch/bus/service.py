@@ -7,6 +7,7 @@ A service is ``add_arguments(parser)`` plus ``run(args, stop) -> int``; ``run`` 
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 import threading
@@ -24,6 +25,20 @@ LINGER_S = 2.0
 what subscribers have not read from their sockets yet (seen at 1000 machines on a loaded host)."""
 
 Run = Callable[[argparse.Namespace, threading.Event], int]
+
+
+def freeze_heap() -> None:
+    """Take every object alive now (a loaded model, torch, schemas, modules) out of the garbage collector's scans.
+
+    Call once a service has loaded what it keeps, before its loop (again after loading a new model). The
+    collector's full (generation 2) passes then look only at what the loop allocates: a scorer with a NARX
+    bundle otherwise stopped for ~200 ms every ~3 s to walk torch's and the bundle's objects (verdict
+    latency p99 244 → 47 ms of CPU at 1000 machines, docs/health-pipeline.md). Objects freed by reference
+    counting are freed as before; only cycles among frozen objects stay until the next call.
+    """
+    gc.unfreeze()
+    gc.collect()
+    gc.freeze()
 
 
 @contextmanager

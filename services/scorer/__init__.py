@@ -31,7 +31,7 @@ from hydrowatch.bus import (
     open_session,
     parse_shard,
 )
-from hydrowatch.bus.service import service_main
+from hydrowatch.bus.service import freeze_heap, service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.log import event, get_logger
 
@@ -113,6 +113,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
 
     model = _Model(args)
     scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing), stagger=args.stagger)
+    freeze_heap()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     counters = {"verdicts": 0}
     with open_session(settings_from_args(args)) as session:
@@ -133,6 +134,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                     scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing)
                                           if parity else 1,
                                           stagger=args.stagger)
+                    freeze_heap()
                 if chunks:
                     verdicts = scorer.update(chunks)
                     _publish(publisher, model.bundle, verdicts)
