@@ -130,14 +130,16 @@ def test_gap_nan_and_out_of_order_invalidate_the_window(bundle_dir: Path, test_r
 
 
 def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], samples: int,
-                      want: int, extra: tuple[str, ...] = ()) -> tuple[int, dict[str, list], object]:
+                      want: int, extra: tuple[str, ...] = (),
+                      skip: frozenset[tuple[int, int]] = frozenset()) -> tuple[int, dict[str, list], object]:
     """Start the scorer service on ``model`` (more arguments: ``extra``), publish ``samples`` of each recording as
-    0.5 s chunks.
+    0.5 s chunks; the chunks ``skip`` names (recording index, first sample) stay off the bus, in the history.
 
     Returns the exit code, the health rows per machine (until ``want`` rows) and the first kl message.
     """
     from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, wait_alive
-    from hydrowatch.io.codec import sensor_chunk_from_arrays
+    from hydrowatch.bus.history import ChunkHistory, HistoryServer
+    from hydrowatch.io.codec import encode_batch, sensor_chunk_from_arrays
     from hydrowatch.report.fleet_table import verdict_rows
 
     port = free_port()
@@ -145,13 +147,18 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
                              "--bus-port", str(port), "--no-stagger", *extra])
     got: dict[str, list] = {}
     try:
+        history = ChunkHistory()
         with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
+                HistoryServer(session, "hydro/t/*/sensors", history), \
                 Subscriber(session, "hydro/t/*/health") as health, Subscriber(session, "hydro/t/*/kl") as kl:
             assert wait_alive(session, "scorer", "t", 1, timeout=90), "scorer did not come up"
             for start in range(0, samples, 100):
-                for r in recordings:
+                for i, r in enumerate(recordings):
                     channels = {c: r[c][start:start + 100] for c in columns}
-                    pub.put(key("t", r.state, "sensors"), sensor_chunk_from_arrays(r.t[start:start + 100], channels))
+                    payload = encode_batch(sensor_chunk_from_arrays(r.t[start:start + 100], channels))
+                    history.add(key("t", r.state, "sensors"), float(r.t[start]), payload)
+                    if (i, start) not in skip:
+                        pub.put_payload(key("t", r.state, "sensors"), payload)
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline and sum(len(v) for v in got.values()) < want:
                 message = health.recv(timeout=0.5)
@@ -389,3 +396,18 @@ def test_the_scorer_service_staggers_windows_by_default() -> None:
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     assert parser.parse_args([]).stagger is True and parser.parse_args(["--no-stagger"]).stagger is False
+
+
+@pytest.mark.parametrize("recover", [True, False])
+def test_a_chunk_lost_on_the_bus_is_fetched_back_by_the_scorer(parity_dir: Path, fleet: list, recover: bool) -> None:
+    machines = fleet[:2]
+    skip = frozenset({(0, 1500)})  # machine 0's chunk in the middle of its second window
+    extra = ("--smoothing", "1") + (() if recover else ("--no-recovery",))
+    code, got, _ = scorer_round_trip(parity_dir, machines, RAW, 3400, 6, extra, skip)
+    assert code == 0
+    rows = sorted(got[machines[0].state], key=lambda row: row["window_start"])
+    states = [row["state"] for row in rows]
+    if recover:  # every window whole: the same verdicts as a loss-free stream
+        assert states == [machines[0].state] * 3
+    else:  # the gap breaks the second window, the stream restarts after it
+        assert "invalid" in states and machines[0].state in states

@@ -5,10 +5,12 @@ machine's window (:class:`hydrowatch.training.online.OnlineScorer`: parity bundl
 samples and, with ``--smoothing N``, the evidence of its last N windows; entropy bundles the
 reference models' delay lines), batched across machines, and publishes
 ``hydro/<fleet>/<machine>/kl`` and ``…/health`` (the pooled verdict) for every window that
-closes. Gaps, NaN, late or out-of-order chunks make the
-window in progress ``invalid`` with its reason. The model comes from a bundle folder or the MLflow
-registry (``models:/NAME@ALIAS``); with ``--follow-alias S`` the alias is checked every S seconds
-and the scorer switches (fresh windows) when it moves. SIGINT/SIGTERM drains and exits.
+closes. A chunk missing from a machine's stream is first asked for from the publisher's history
+(:mod:`hydrowatch.bus.recovery`; the machine's newer chunks wait meanwhile, at most 2 s); gaps
+that stay, NaN, late or out-of-order chunks make the window in progress ``invalid`` with its reason.
+The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
+``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
+when it moves. SIGINT/SIGTERM drains and exits.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from hydrowatch.bus import (
     open_session,
     parse_shard,
 )
+from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import freeze_heap, service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.log import event, get_logger
@@ -64,6 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "fleet started together, or every machine after a restart or a model switch, does not "
                              "close every window at once (default on; costs up to one window of samples after each "
                              "(re)start; --no-stagger: windows from each machine's first sample)")
+    parser.add_argument("--no-recovery", action="store_true",
+                        help="do not ask publishers' history for chunks missing from a machine's stream (a missed "
+                             "chunk then invalidates its window)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
@@ -118,6 +124,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     counters = {"verdicts": 0}
     with open_session(settings_from_args(args)) as session:
         subscriber = Subscriber(session, key_expr(args.fleet, "*", "sensors"), shard=args.shard)
+        recovery = None if args.no_recovery else GapRecovery(session)
         publisher = Publisher(session)
         reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {
             "messages_in": subscriber.received, "messages_out": publisher.messages_out,
@@ -127,7 +134,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             reporter.status = "running"
             event(log, "scorer started", model=model.bundle.version, shard=str(args.shard), fleet=args.fleet)
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                chunks = _gather(subscriber, args.tick, scorer.columns)
+                chunks = _gather(subscriber, args.tick, scorer.columns, recovery)
                 if model.moved():
                     # an entropy bundle cannot pool windows: its verdicts are per window
                     parity = model.bundle.method == "parity"
@@ -141,7 +148,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                     counters["verdicts"] += len(verdicts)
             reporter.status = "draining"
             subscriber.close()
-            rest = _chunks(list(subscriber.drain()), scorer.columns)
+            last = list(subscriber.drain())
+            rest = _chunks(recovery.observe(last) + recovery.wait() if recovery else last, scorer.columns)
             _publish(publisher, model.bundle, scorer.update(rest))
         finally:
             subscriber.close()
@@ -160,19 +168,23 @@ def _chunks(messages: list[Message], columns: Sequence[str]) -> ChunkBatch:
                                columns)
 
 
-def _gather(subscriber: Subscriber, tick: float, columns: Sequence[str]) -> ChunkBatch | None:
-    """Chunks received within ``tick`` seconds of the first one (at most 0.1 s waiting for it)."""
+def _gather(subscriber: Subscriber, tick: float, columns: Sequence[str],
+            recovery: GapRecovery | None) -> ChunkBatch | None:
+    """Chunks received within ``tick`` seconds of the first one (at most 0.1 s waiting for it), with what
+    ``recovery`` fetched or held back meanwhile (each machine's chunks in order)."""
+    messages: list[Message] = []
     first = subscriber.recv(timeout=0.1)
-    if first is None:
-        return None
-    messages = [first]
-    end = time.monotonic() + tick
-    while (left := end - time.monotonic()) > 0:
-        message = subscriber.recv(timeout=left)
-        if message is None:
-            break
-        messages.append(message)
-    return _chunks(messages, columns)
+    if first is not None:
+        messages.append(first)
+        end = time.monotonic() + tick
+        while (left := end - time.monotonic()) > 0:
+            message = subscriber.recv(timeout=left)
+            if message is None:
+                break
+            messages.append(message)
+    if recovery is not None:
+        messages = recovery.observe(messages) + recovery.collect()
+    return _chunks(messages, columns) if messages else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
