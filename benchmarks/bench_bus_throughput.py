@@ -171,6 +171,8 @@ def main() -> None:
     parser.add_argument("--drop-every", type=int, default=0, metavar="N",
                         help="the plant leaves every N-th message off the bus (fault injection): the recorders "
                              "must fetch them from its history")
+    parser.add_argument("--history", type=float, default=5.0, metavar="SECONDS",
+                        help="simulated seconds of chunks each plant keeps for recovery (plant --history, default 5)")
     parser.add_argument("--scratch", type=Path, default=None,
                         help="folder for the temporary recordings (default: the system's temporary folder)")
     parser.add_argument("--publish-shard", default=None, help=argparse.SUPPRESS)
@@ -199,7 +201,8 @@ def main() -> None:
                       "--bus-port", str(port)]
             if args.source == "plant":
                 argv = [sys.executable, "-m", "services.plant", "--fleet", FLEET, "--speed", "inf",
-                        "--wait-subscribers", "60", "--drop-every", str(args.drop_every), *common]
+                        "--wait-subscribers", "60", "--drop-every", str(args.drop_every),
+                        "--history", str(args.history), *common]
                 plants = [Child([*argv, "--shard", f"{i}/{args.plants}"]) for i in range(args.plants)]
             else:
                 argv = [sys.executable, __file__, *common]

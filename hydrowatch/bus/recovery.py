@@ -157,7 +157,8 @@ class GapRecovery:
     def _query(self, key: str, start: float, end: float, samples: int, kind: str) -> None:
         """Ask the history of ``key`` for chunks starting in [start, end) s; a gap or head holds the key's output."""
         replies = self.session.get(f"{key}?start={start!r};end={end!r}", zenoh.handlers.FifoChannel(1024),
-                                   consolidation=zenoh.ConsolidationMode.NONE, timeout=self.timeout)
+                                   consolidation=zenoh.ConsolidationMode.NONE, target=zenoh.QueryTarget.ALL,
+                                   timeout=self.timeout)
         self._pending.append(_Request(key, start, end, samples, kind, time.monotonic() + self.timeout, replies))
         if kind != "tail":
             self._held.setdefault(key, [])
