@@ -116,3 +116,33 @@ def test_a_lossy_plant_is_recorded_in_full(tmp_path):
     # the tails); each file holds all 600 samples in order (held back until the gap was filled)
     for t, _ in machines.values():
         assert_contiguous(t, 600)
+
+
+def test_a_machine_that_stops_while_the_fleet_goes_on_has_its_tail_fetched():
+    port = free_port()
+    keys = {m: key("f", m, "sensors") for m in ("m0", "m1")}
+    with open_session(BusSettings(port=port)) as pub_session, open_session(BusSettings(port=port)) as sub_session:
+        history = ChunkHistory()
+        with HistoryServer(pub_session, "hydro/f/*/sensors", history), \
+                Subscriber(sub_session, "hydro/f/*/sensors") as subscriber, Publisher(pub_session) as publisher:
+            recovery = GapRecovery(sub_session)
+            assert publisher.wait_for_subscribers(list(keys.values()), 20)
+            got: list = []
+
+            def publish(chunks: range, machines: tuple[str, ...], on_bus: bool = True) -> None:
+                for i in chunks:
+                    for m in machines:
+                        history.add(keys[m], i * 0.1, payload(i))
+                        if on_bus:
+                            publisher.put_payload(keys[m], payload(i))
+
+            for chunks, machines, on_bus in [(range(0, 5), ("m0", "m1"), True),
+                                             (range(5, 6), ("m0",), False),  # m0's last chunk: lost on the bus
+                                             (range(5, 10), ("m1",), True)]:
+                publish(chunks, machines, on_bus)
+                time.sleep(0.3)
+                got += recovery.observe(subscriber.recv_many(timeout=0.2))
+                recovery.ask_stalled()  # after the third phase m0 has not moved while m1 has: its tail is asked for
+            got += recovery.wait()
+    m0 = sorted(int(round(m.start_time() * 10)) for m in got if m.key.machine == "m0")
+    assert m0 == [0, 1, 2, 3, 4, 5] and recovery.chunks_recovered == 1

@@ -16,7 +16,9 @@ the history is asked for whatever came before (chunks lost at the start, or, for
 joins a running fleet, up to the history's depth of past chunks, which the recording then starts
 with). Its *tail*: when the bus has been quiet for a moment (the end of a run; publishers linger a
 while before they leave), :meth:`ask_tails` asks every machine's history for whatever follows its
-last received chunk. A gap nobody answers (a publisher without history, or one that has forgotten
+last received chunk; and :meth:`ask_stalled`, called every second or so, asks for the tails of the
+machines that sent nothing while others did (a publisher that ended before the rest of the fleet).
+A gap nobody answers (a publisher without history, or one that has forgotten
 the chunks or is gone) is counted and logged with its machine and time range: the loss is then
 known, not silent. What this cannot see: a machine none of whose chunks arrived, and a tail whose
 publisher has already left.
@@ -45,6 +47,8 @@ TIMEOUT_S = 2.0
 """Seconds a history query may take before its missing samples count as lost."""
 SAMPLE_PERIOD_S = 1.0 / 200.0
 """Sample period assumed for one-row chunks, s (the contract's 200 Hz)."""
+FORGET_AFTER_S = 60.0
+"""Chunk starts taken out of order are remembered this long behind a key's stream (to keep each once), s."""
 LOGGED_GAPS = 20
 """Gaps logged one by one (then only counted)."""
 _STAMP = struct.Struct("<q")
@@ -107,6 +111,8 @@ class GapRecovery:
     """Per key with a gap or head question open: the chunks received or recovered meanwhile."""
     _filled: dict[str, set[int]] = field(default_factory=dict)
     """Per key, the starts (µs) of chunks taken out of their order (late or recovered): each is kept once."""
+    _tail_asked: dict[str, float] = field(default_factory=dict)
+    _seen: dict[str, float] = field(default_factory=dict)
     _schema: pa.Schema = field(default_factory=lambda: schema_by_name("sensor_chunk"))
 
     def observe(self, messages: Iterable[Message]) -> list[Message]:
@@ -163,12 +169,24 @@ class GapRecovery:
         if kind != "tail":
             self._held.setdefault(key, [])
 
-    def ask_tails(self) -> None:
-        """Ask every machine's history for chunks after its last received one (call when the bus is quiet)."""
+    def ask_tails(self, keys: Iterable[str] | None = None) -> None:
+        """Ask the history of ``keys`` (default: every machine) for chunks after the last one received (call
+        when the bus is quiet); a key is asked once per place in its stream."""
         asking = {r.key for r in self._pending if r.kind == "tail"}
-        for key, (expected, _) in self._next.items():
-            if key not in asking:
+        for key in self._next if keys is None else keys:
+            expected = self._next[key][0]
+            if key not in asking and self._tail_asked.get(key) != expected:
+                self._tail_asked[key] = expected
                 self._query(key, expected, float("inf"), 0, "tail")
+
+    def ask_stalled(self) -> None:
+        """Ask for the tails of the machines that sent nothing since the last call while others did (call every
+        second or so): a machine's last chunks lost while the rest of the fleet goes on (its publisher ended
+        first, or a shard) are fetched before that publisher leaves."""
+        moved = {key for key, (expected, _) in self._next.items() if self._seen.get(key) != expected}
+        if moved:
+            self.ask_tails([key for key in self._next if key not in moved and key in self._seen])
+        self._seen = {key: expected for key, (expected, _) in self._next.items()}
 
     @property
     def pending(self) -> int:
@@ -238,6 +256,10 @@ class GapRecovery:
         return Message(parse_key(request.key), None, payload, sent or time.time_ns(), sent, layout)
 
     def _settle(self, request: _Request) -> None:
+        filled = self._filled.get(request.key)
+        if filled and request.key in self._next:  # a long-running recorder keeps only the last minute's
+            oldest = _stamp(self._next[request.key][0] - FORGET_AFTER_S)
+            self._filled[request.key] = {t for t in filled if t >= oldest}
         lost = request.samples - request.received
         if lost > 0:
             self.samples_lost += lost

@@ -102,6 +102,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                         recovery.ask_tails()
                         tails_asked = True
                 if time.monotonic() >= next_tick:
+                    if recovery is not None:
+                        recovery.ask_stalled()
                     files.tick()
                     next_tick = time.monotonic() + args.flush
             last_message, tails_asked = time.monotonic(), True
