@@ -15,18 +15,17 @@ Cost on the publisher: one deque append per message; memory ``depth`` × machine
 
 from __future__ import annotations
 
-import struct
 import threading
 from collections import deque
 
 import zenoh
 
 from hydrowatch.bus.keys import parse_key
+from hydrowatch.bus.pubsub import STAMP
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 
 log = get_logger(__name__)
-_STAMP = struct.Struct("<q")
 DEPTH = 50
 """Chunks kept per machine (5 s of 0.1 s chunks): longer than any gap a subscriber notices and asks about."""
 
@@ -77,7 +76,7 @@ class ChunkHistory:
             query.reply_err(f"history query must be '<sensor key>?start=<s>;end=<s>'. {exc}")
             return
         for payload, sent in self.between(key, start, end):
-            query.reply(key, payload, attachment=_STAMP.pack(sent))
+            query.reply(key, payload, attachment=STAMP.pack(sent))
             self.served += 1
 
 

@@ -29,7 +29,16 @@ from hydrowatch.log import event, get_logger
 from hydrowatch.schemas import schema_by_name
 
 log = get_logger(__name__)
-_STAMP = struct.Struct("<q")
+STAMP = struct.Struct("<q")
+"""The attachment every message carries: when it was published, int64 ns since the Unix epoch."""
+
+
+def publish_time(sample: zenoh.Sample) -> int:
+    """A received sample's publish time from its attachment, ns since the epoch (0 when it has none)."""
+    attachment = sample.attachment
+    stamp = attachment.to_bytes() if attachment is not None else b""
+    return STAMP.unpack(stamp)[0] if len(stamp) == STAMP.size else 0
+
 SETTLE_S = 0.5
 """Seconds a publisher waits after its keys first match, for the subscribers it learns of later."""
 
@@ -91,7 +100,7 @@ class Publisher:
 
     def put_payload(self, key: str, payload: bytes, publish_time_ns: int | None = None) -> None:
         """Publish already-encoded bytes on ``key`` (replay uses this to avoid re-encoding)."""
-        stamp = _STAMP.pack(time.time_ns() if publish_time_ns is None else publish_time_ns)
+        stamp = STAMP.pack(time.time_ns() if publish_time_ns is None else publish_time_ns)
         self._publisher(key).put(payload, attachment=stamp)
         self.messages_out += 1
 
@@ -240,10 +249,7 @@ class Subscriber:
                     if len(parts) > 2 and not self.shard.includes(parts[2]):
                         self.outside_shard += 1
                         continue
-                attachment = sample.attachment
-                stamp = attachment.to_bytes() if attachment is not None else b""
-                published = _STAMP.unpack(stamp)[0] if len(stamp) == _STAMP.size else 0
-                return key, sample.payload.to_bytes(), time.time_ns(), published
+                return key, sample.payload.to_bytes(), time.time_ns(), publish_time(sample)
         return None
 
     def _decode(self, item: tuple[str, bytes, int, int]) -> Message | None:

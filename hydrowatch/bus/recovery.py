@@ -27,7 +27,6 @@ publisher has already left.
 from __future__ import annotations
 
 import logging
-import struct
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ import pyarrow as pa
 import zenoh
 
 from hydrowatch.bus.keys import parse_key
-from hydrowatch.bus.pubsub import Message
+from hydrowatch.bus.pubsub import Message, publish_time
 from hydrowatch.errors import DataError
 from hydrowatch.io.codec import check_payload
 from hydrowatch.log import event, get_logger
@@ -51,7 +50,6 @@ FORGET_AFTER_S = 60.0
 """Chunk starts taken out of order are remembered this long behind a key's stream (to keep each once), s."""
 LOGGED_GAPS = 20
 """Gaps logged one by one (then only counted)."""
-_STAMP = struct.Struct("<q")
 
 
 def _stamp(t: float) -> int:
@@ -246,8 +244,7 @@ class GapRecovery:
                   reason=error.payload.to_string() if error is not None else "no reply")
             return None
         payload = sample.payload.to_bytes()
-        stamp = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        sent = _STAMP.unpack(stamp)[0] if len(stamp) == _STAMP.size else 0
+        sent = publish_time(sample)
         try:
             layout = check_payload(payload, self._schema, f"history of {request.key}")
         except DataError as exc:
