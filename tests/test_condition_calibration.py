@@ -60,10 +60,12 @@ def test_healthy_wins_unloaded_windows_whatever_the_order_of_states(healthy_last
     assert model.features_.states_[0] == "healthy" and model.decision_.classes_[0] == "healthy"
     ratios = model.features_.transform_with_levels(windows)
     p = model.decision_.predict_proba(ratios)
-    # Measured: in this cycle the five faults explain every one of the 24 windows as well as healthy
-    # does (pump saturation; each window a six-way tie, p = 1/6). The states used to keep the order
-    # they were given in, so with healthy last all 24 read as the first fault.
-    assert np.all(np.isclose(p, p[:, :1]), axis=1).mean() > 0.5
+    # Measured: in this cycle several faults explain the windows about as well as healthy does
+    # (pump saturation; before the unit was identified each window was an exact six-way tie,
+    # p = 1/6; now near-ties, e.g. five states at 0.187). The states used to keep the order they
+    # were given in, so with healthy last all 24 read as the first fault.
+    near_ties = np.sum(p >= 0.8 * p.max(axis=1, keepdims=True), axis=1)
+    assert np.mean(near_ties >= 3) > 0.5
     assert np.mean(model.predict(windows) == "healthy") >= 0.95
     prior = ParityRule.from_dict({**model.decision_.to_dict(), "params": {"healthy_prior": 0.5}})
     assert prior.predict_proba(ratios)[:, 0].mean() >= 0.45  # the prior option: p(healthy) 1/6 -> 0.5

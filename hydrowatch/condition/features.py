@@ -40,6 +40,7 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
+from hydrowatch.condition.unit import identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, sliding_windows, window_starts
 from hydrowatch.log import event, get_logger
@@ -103,6 +104,11 @@ class ConditionFeatures:
         k, 1/K, of the oil: viscosity ∝ exp(−k·(T − 40 °C)). Used with windows that carry the
         temperature channel to refer leakage to 40 °C (take it from the oil's data sheet; 0.04 is
         a mineral ISO VG 46 oil near 40 °C and the plant simulator's default).
+    identify : bool, default True
+        Identify the unit's own nominal parameters from the ``healthy`` windows before anything
+        else (:func:`hydrowatch.condition.unit.identify_unit`, starting from ``nominal``): every
+        box and level is then relative to this unit, not to the design values. False keeps
+        ``nominal`` as given (right only for a unit that really has those parameters).
 
     Attributes
     ----------
@@ -115,13 +121,17 @@ class ConditionFeatures:
         Each state's severity box.
     floors_ : dict of str to float
         Residual floor of each relation (load: (N·m)², motor, valve: (L/min)²).
+    nominal_ : PlantParameters
+        The unit's own nominal parameters (identified, or ``nominal`` as given).
+    unit_ : dict
+        :meth:`hydrowatch.condition.unit.UnitFit.summary` of the identification ({} without it).
     feature_names_ : list of str
     """
 
     def __init__(self, *, window: int = 1000, hop: int = 1000, sensors: Sequence[str] = SENSORS,
                  nominal: PlantParameters | Mapping[str, float] | None = None, kind: str = "scores",
                  tolerance: float = 0.25, level_weight: float = 1.0, level_width: float = 0.01,
-                 viscosity_coefficient: float = 0.04) -> None:
+                 viscosity_coefficient: float = 0.04, identify: bool = True) -> None:
         self.window = window
         self.hop = hop
         self.sensors = sensors
@@ -131,6 +141,7 @@ class ConditionFeatures:
         self.level_weight = level_weight
         self.level_width = level_width
         self.viscosity_coefficient = viscosity_coefficient
+        self.identify = identify
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters (``nominal`` as a plain dict or None, JSON-able)."""
@@ -138,7 +149,7 @@ class ConditionFeatures:
         return {"window": self.window, "hop": self.hop, "sensors": list(self.sensors),
                 "nominal": None if nominal is None else dict(nominal), "kind": self.kind, "tolerance": self.tolerance,
                 "level_weight": self.level_weight, "level_width": self.level_width,
-                "viscosity_coefficient": self.viscosity_coefficient}
+                "viscosity_coefficient": self.viscosity_coefficient, "identify": self.identify}
 
     def _parameters(self) -> PlantParameters:
         check_window(self.window, self.hop)
@@ -172,6 +183,11 @@ class ConditionFeatures:
         p = self._parameters()
         if "healthy" not in windows_by_state:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
+        self.unit_: dict[str, Any] = {}
+        if self.identify:
+            unit = identify_unit(E.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
+                                 self.viscosity_coefficient)
+            p, self.unit_ = unit.parameters, unit.summary()
         self.nominal_ = p
         # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
         # the faults that only show under load tie with healthy (ParityRule)
@@ -352,7 +368,7 @@ class ConditionFeatures:
         return {"params": self.get_params(), "nominal_parameters": self.nominal_.to_dict(),
                 "states": list(self.states_), "relations": list(self.relations_), "levels": self.levels_,
                 "boxes": {k: {f: list(b) for f, b in box.items()} for k, box in self.boxes_.items()},
-                "floors": self.floors_}
+                "floors": self.floors_, "unit": self.unit_}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ConditionFeatures:
@@ -367,6 +383,7 @@ class ConditionFeatures:
             model.boxes_ = {k: {f: (float(b[0]), float(b[1])) for f, b in box.items()}
                             for k, box in data["boxes"].items()}
             model.floors_ = {k: float(v) for k, v in data["floors"].items()}
+            model.unit_ = dict(data.get("unit", {}))
             model.level_boxes_ = {k: model._box(k, model.nominal_, narrow=True) for k in model.states_}
         except (KeyError, TypeError, IndexError) as exc:
             raise DataError(f"condition features must have params, states, relations, levels, boxes and floors. "

@@ -1,0 +1,255 @@
+"""Verdicts on units and days that did not tune them (issue 11): a population of simulated units.
+
+Each unit draws every nominal parameter (``hydrowatch.plant.population.random_unit``: ±20 %,
+leakages and damping ±50 %) and a DAQ with 1–3× the default sensor noise. It is trained on its
+own identification recordings (filtered noise 0–4 V, one recording per health state, as the
+study) and tested on a **later day** (``later_day``: leakages, load and damping drifted ±3–5 %) on:
+
+- ``like training``: filtered noise 0–4 V, another seed;
+- ``duty cycle``: holds, ramps and steps over 0.5–3.5 V;
+- ``slow noise``: filtered noise with pole 0.98 over 0.5–3.5 V;
+- ``narrow noise``: filtered noise over 1–3 V;
+- ``spread, duty cycle``: every fault's severity drawn inside its level's band, duty cycle;
+- ``oil ±5 C``: the oil 5 °C warmer or colder (sign drawn per unit), duty cycle, with the
+  temperature channel and without it;
+- ``open set``: a 7-state model scores the other 6 faults (warning and alert, duty cycle and
+  slow noise); right = ``unknown``. ``known read unknown`` is the share of the 7 states' windows
+  (every condition above) that read ``unknown``.
+
+``commissioned`` (with ``--commission``): the 7- and 13-state models of the *first* unit of the
+population are commissioned on each other unit's healthy duty cycle (300 s, its training day),
+then score that unit's later day on working commands (duty cycle and slow noise); the same without
+commissioning is printed beside it.
+
+Accuracy = share of windows whose verdict is the true state (``unknown``, ``invalid`` count as
+wrong). Per window (pool 1) and pooled over each machine's last 3, 6, 12 valid windows (all
+windows counted, the first ones pooled over fewer). Per condition and setting: the **median unit
+and the worst unit**. Probabilities: expected calibration error (10 bins of the verdict's
+probability, verdicts that name a state) and the share of wrong named verdicts with p > 0.99.
+
+Run: ``python benchmarks/bench_unseen_units.py [--units 20] [--seed 2026] [--train-seconds 300]
+[--test-seconds 100] [--commission] [--json OUT]``. The population of ``--seed 7`` tuned the
+defaults during development; report on another seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import defaultdict
+from collections.abc import Callable
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from hydrowatch.condition import ConditionModel, trailing_evidence
+from hydrowatch.health.verdict import Verdict
+from hydrowatch.plant import PlantParameters, PlantSimulator
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
+from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
+from hydrowatch.plant.population import later_day, random_unit
+
+CHANNELS = ("voltage", "flow", "speed", "torque", "temperature")
+W = 1000
+POOLS = (1, 3, 6, 12)
+UNSEEN = tuple(s for s in EXTENDED_STATES if s not in STUDY_STATES)
+
+
+def simulate(params: list[PlantParameters], u: np.ndarray, seed: int, effects: dict | None = None) -> list[np.ndarray]:
+    """Raw windows (n, W, 5) of each machine (parameters) under one command, temperature last."""
+    sim = PlantSimulator(params, effects, seed=seed)
+    sim.settle(float(u[0]))
+    out = sim.step(np.broadcast_to(u, (len(params), u.size)))
+    n = u.size // W * W
+    return [np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1) for i in range(len(params))]
+
+
+def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdict]]:
+    """Verdicts of one machine's windows for every pool size (one feature pass)."""
+    rows = model.features_.transform_evidence(windows)
+    reasons = model.features_.window_reasons(windows)
+    ratios = rows[:, : 2 * len(model.features_.feature_names_)]
+    out = {1: model.judge_evidence(ratios, ratios, reasons)}
+    layout = model.features_.evidence_layout()
+    for n in POOLS[1:]:
+        out[n] = model.judge_pooled(*trailing_evidence(rows, n, layout), ratios, reasons)
+    return out
+
+
+class Tally:
+    """Right/total per (condition, pool) of one unit, and the probabilities of named verdicts."""
+
+    def __init__(self) -> None:
+        self.right: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
+        self.calibration: dict[int, list[tuple[float, bool]]] = defaultdict(list)
+        self.unknown_known: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+
+    def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True) -> None:
+        for n, vs in by_pool.items():
+            cell = self.right[(condition, n)]
+            cell[0] += sum(v.state == truth for v in vs)
+            cell[1] += len(vs)
+            if known:
+                u = self.unknown_known[n]
+                u[0] += sum(v.state == "unknown" for v in vs)
+                u[1] += len(vs)
+                self.calibration[n] += [(float(v.probability), v.state == truth) for v in vs
+                                        if v.probability is not None and v.state not in ("unknown", "invalid")]
+
+
+def ece(pairs: list[tuple[float, bool]], bins: int = 10) -> tuple[float, float]:
+    """Expected calibration error and share of wrong verdicts with p > 0.99."""
+    if not pairs:
+        return float("nan"), float("nan")
+    p = np.array([a for a, _ in pairs])
+    ok = np.array([b for _, b in pairs], dtype=float)
+    idx = np.minimum((p * bins).astype(int), bins - 1)
+    e = sum(abs(ok[idx == b].mean() - p[idx == b].mean()) * np.mean(idx == b) for b in range(bins) if np.any(idx == b))
+    wrong = ok == 0
+    return float(e), float(np.mean(p[wrong] > 0.99)) if wrong.any() else 0.0
+
+
+def unit_conditions(day: PlantParameters, states: tuple[str, ...], rng: np.random.Generator, test_s: float,
+                    seed: int) -> list[tuple[str, list[PlantParameters], np.ndarray, dict | None, bool]]:
+    """(condition, parameters per state, command, effects, with temperature) of one unit's later day."""
+    nominal = [state_parameters(s, day) for s in states]
+    spread = [random_state_parameters(s, rng, day)[0] for s in states]
+    warm = 40.0 + (5.0 if rng.random() < 0.5 else -5.0)
+    oil = {"thermal_drift": {"T_start": warm, "T_end": warm}}
+    dc = duty_cycle(2 * test_s, (0.5, 3.5), seed=seed + 4)
+    return [
+        ("like training", nominal, filtered_noise(test_s, (0, 4), seed=seed + 2), None, True),
+        ("duty cycle", nominal, dc, None, True),
+        ("slow noise", nominal, filtered_noise(test_s, (0.5, 3.5), seed=seed + 5, pole=0.98), None, True),
+        ("narrow noise", nominal, filtered_noise(test_s, (1, 3), seed=seed + 6), None, True),
+        ("spread, duty cycle", spread, duty_cycle(2 * test_s, (0.5, 3.5), seed=seed + 7), None, True),
+        ("oil ±5 C, with temperature", nominal, dc, oil, True),
+        ("oil ±5 C, without it", nominal, dc, oil, False),
+    ]
+
+
+def train(unit: PlantParameters, states: tuple[str, ...], train_s: float, seed: int) -> ConditionModel:
+    """A parity model fitted on one unit's identification recordings (filtered noise 0–4 V), the defaults."""
+    windows = simulate([state_parameters(s, unit) for s in states], filtered_noise(train_s, (0, 4), seed=seed), seed)
+    return ConditionModel().fit(dict(zip(states, windows)))
+
+
+def evaluate(model: ConditionModel, day: PlantParameters, states: tuple[str, ...], rng: np.random.Generator,
+             test_s: float, seed: int, tally: Tally) -> None:
+    """Score one unit's later day under every condition into ``tally``."""
+    for condition, params, u, effects, temperature in unit_conditions(day, states, rng, test_s, seed):
+        for state, w in zip(states, simulate(params, u, seed + 100, effects)):
+            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]))
+
+
+def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: int, tally: Tally) -> None:
+    """The 6 faults the 7-state model never saw, duty cycle and slow noise: right = unknown."""
+    params = [state_parameters(s, day) for s in UNSEEN]
+    for u in (duty_cycle(2 * test_s, (0.5, 3.5), seed=seed + 8),
+              filtered_noise(test_s, (0.5, 3.5), seed=seed + 9, pole=0.98)):
+        for w in simulate(params, u, seed + 200):
+            tally.add("open set (unseen faults)", "unknown", verdicts(model, w), known=False)
+
+
+def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
+    """Print median and worst unit per condition and pool; returns the figures."""
+    conditions = list(dict.fromkeys(c for c, _ in tallies[0].right))
+    print(f"\n## {title}: {len(tallies)} units, % of windows right, median / worst unit")
+    print("| condition | " + " | ".join(f"pool {n}" for n in POOLS) + " |")
+    print("|---|" + "---|" * len(POOLS))
+    figures: dict[str, object] = {}
+    for c in conditions:
+        cells = []
+        for n in POOLS:
+            acc = np.array([100.0 * t.right[(c, n)][0] / max(t.right[(c, n)][1], 1) for t in tallies])
+            cells.append(f"{np.median(acc):.1f} / {acc.min():.1f}")
+            figures[f"{c}|{n}"] = {"median": float(np.median(acc)), "worst": float(acc.min())}
+        print(f"| {c} | " + " | ".join(cells) + " |")
+    cells, cal = [], []
+    for n in POOLS:
+        share = np.array([100.0 * t.unknown_known[n][0] / max(t.unknown_known[n][1], 1) for t in tallies])
+        cells.append(f"{np.median(share):.1f} / {share.max():.1f}")
+        e, w = ece([pair for t in tallies for pair in t.calibration[n]])
+        cal.append(f"{e:.3f} / {100 * w:.0f} %")
+        figures[f"known read unknown|{n}"] = {"median": float(np.median(share)), "worst": float(share.max())}
+        figures[f"calibration|{n}"] = {"ece": e, "wrong_p99": w}
+    print("| known read unknown (lower is better) | " + " | ".join(cells) + " |")
+    print("| ECE / wrong with p > 0.99 (all units) | " + " | ".join(cal) + " |")
+    return figures
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--units", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=2026, help="population seed (7 tuned the defaults)")
+    ap.add_argument("--train-seconds", type=float, default=300.0)
+    ap.add_argument("--test-seconds", type=float, default=100.0)
+    ap.add_argument("--states", choices=("7", "13", "both"), default="both")
+    ap.add_argument("--commission", action="store_true", help="also the commissioning section")
+    ap.add_argument("--json", default=None, help="write the figures here")
+    args = ap.parse_args()
+    rng = np.random.default_rng(args.seed)
+    sets = {"7": (STUDY_STATES,), "13": (EXTENDED_STATES,), "both": (STUDY_STATES, EXTENDED_STATES)}[args.states]
+    tallies: dict[int, list[Tally]] = {len(s): [] for s in sets}
+    first: dict[int, ConditionModel] = {}
+    units = []
+    t0 = time.time()
+    with threadpool_limits(1):
+        for i in range(args.units):
+            unit, day = random_unit(rng), None
+            day = later_day(unit, rng)
+            units.append((unit, day))
+            seed = 1000 * (i + 1) + args.seed
+            for states in sets:
+                model = train(unit, states, args.train_seconds, seed)
+                first.setdefault(len(states), model)
+                tally = Tally()
+                evaluate(model, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
+                if len(states) == 7:
+                    open_set(model, day, args.test_seconds, seed, tally)
+                tallies[len(states)].append(tally)
+            print(f"unit {i + 1}/{args.units} done, {time.time() - t0:.0f} s", flush=True)
+        figures = {f"{k} states": summarise(v, f"{k} states, each unit trained on its own recordings")
+                   for k, v in tallies.items()}
+        if args.commission:
+            figures.update(commissioning(first, units, sets, args))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(figures, f, indent=1)
+
+
+def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParameters, PlantParameters]],
+                  sets: tuple[tuple[str, ...], ...], args: argparse.Namespace) -> dict[str, object]:
+    """The first unit's models on every other unit, commissioned on its healthy duty cycle or not."""
+    out: dict[str, object] = {}
+    for states in sets:
+        base = first[len(states)]
+        plain, commissioned = [], []
+        for j, (unit, day) in enumerate(units[1:], start=1):
+            seed = 50_000 + 1000 * j + args.seed
+            healthy = simulate([unit], duty_cycle(300.0, (0.5, 3.5), seed=seed + 1), seed)[0]
+            model = base.commission(healthy)
+            for tallies_, m in ((plain, base), (commissioned, model)):
+                tally = Tally()
+                rng = np.random.default_rng(seed)
+                score_working(m, day, states, rng, args.test_seconds, seed, tally)
+                tallies_.append(tally)
+        k = len(states)
+        out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, not commissioned")
+        out[f"{k} states, commissioned"] = summarise(commissioned, f"{k} states, first unit's model, commissioned")
+    return out
+
+
+def score_working(model: ConditionModel, day: PlantParameters, states: tuple[str, ...], rng: np.random.Generator,
+                  test_s: float, seed: int, tally: Tally,
+                  keep: Callable[[str], bool] = lambda c: c in ("duty cycle", "slow noise")) -> None:
+    """Score a unit's later day on working commands only."""
+    for condition, params, u, effects, temperature in unit_conditions(day, states, rng, test_s, seed):
+        if keep(condition):
+            for state, w in zip(states, simulate(params, u, seed + 100, effects)):
+                tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]))
+
+
+if __name__ == "__main__":
+    main()
