@@ -44,6 +44,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel, trailing_evidence
+from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.health.verdict import Verdict
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -225,11 +226,15 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
     out: dict[str, object] = {}
     for states in sets:
         base = first[len(states)]
-        plain, commissioned = [], []
+        plain, commissioned, refused = [], [], 0
         for j, (unit, day) in enumerate(units[1:], start=1):
             seed = 50_000 + 1000 * j + args.seed
             healthy = simulate([unit], duty_cycle(300.0, (0.5, 3.5), seed=seed + 1), seed)[0]
-            model = base.commission(healthy)
+            try:
+                model = commission(base, healthy).model
+            except CommissioningError as exc:  # the unit keeps the fleet model
+                print(f"unit {j + 1}: commissioning refused: {exc}")
+                model, refused = base, refused + 1
             for tallies_, m in ((plain, base), (commissioned, model)):
                 tally = Tally()
                 rng = np.random.default_rng(seed)
@@ -238,6 +243,8 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
         k = len(states)
         out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, not commissioned")
         out[f"{k} states, commissioned"] = summarise(commissioned, f"{k} states, first unit's model, commissioned")
+        out[f"{k} states, commissioning refused"] = refused
+        print(f"commissioning refused on {refused} of {len(units) - 1} healthy units")
     return out
 
 

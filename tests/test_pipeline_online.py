@@ -411,3 +411,45 @@ def test_a_chunk_lost_on_the_bus_is_fetched_back_by_the_scorer(parity_dir: Path,
         assert states == [machines[0].state] * 3
     else:  # the gap breaks the second window, the stream restarts after it
         assert "invalid" in states and machines[0].state in states
+
+
+def test_a_model_switch_to_a_bundle_reading_temperature_gathers_temperature(bundle_dir: Path, parity_dir: Path,
+                                                                          fleet: list) -> None:
+    """Issue 11, item 5: the switch happens before the chunks are gathered, so the parity bundle (which reads the
+    oil temperature) gets chunks with it, and its verdicts come out; before, it got the entropy bundle's columns."""
+    import argparse
+
+    from hydrowatch.training.bundle import ModelBundle
+    from services.scorer import _scorer, _step, _Units, add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--no-stagger"])
+
+    class Switching:  # the registry alias moves from the entropy bundle to the parity bundle on the first turn
+        def __init__(self) -> None:
+            self.bundle, self.turns = ModelBundle.load(bundle_dir), 0
+
+        def moved(self) -> bool:
+            self.turns += 1
+            if self.turns == 1:
+                self.bundle = ModelBundle.load(parity_dir)
+                return True
+            return False
+
+    model = Switching()
+    units = _Units(None, model.bundle)
+    scorer = _scorer(model, units, args)  # type: ignore[arg-type]
+    assert "temperature" not in scorer.columns
+    asked: list[list[str]] = []
+    r = fleet[0]
+
+    def gather(columns):
+        asked.append(list(columns))
+        return chunks_from_batches(["t/m"], [sensor_chunk_from_arrays(r.t[:2000], {c: r[c][:2000] for c in RAW})],
+                                   columns)
+
+    units, scorer, verdicts = _step(model, units, scorer, args, gather)  # type: ignore[arg-type]
+    assert asked == [list(RAW)]
+    assert scorer.bundle.method == "parity" and len(verdicts) == 2
+    assert all(v.verdict.state != "invalid" for v in verdicts)

@@ -40,7 +40,7 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
-from hydrowatch.condition.unit import identify_unit
+from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, sliding_windows, window_starts
 from hydrowatch.log import event, get_logger
@@ -211,18 +211,51 @@ class ConditionFeatures:
                 self.levels_[state] = float(np.median(fitted[state][1].severity[fault]))
         self.boxes_ = {state: self._box(state, p) for state in self.states_}
         self.level_boxes_ = {state: self._box(state, p, narrow=True) for state in self.states_}
-        sig, est = fitted["healthy"]
-        healthy = E.relation_mse(sig, est, p, self.boxes_["healthy"])
-        self.floors_ = {r: float(np.median(healthy[r])) for r in self.relations_}
+        self.floors_ = self._floors(*fitted["healthy"])
         self.feature_names_ = self._names()
         event(_log, "condition features fitted", states=len(self.states_), relations=",".join(self.relations_),
               kind=self.kind)
         return self
 
-    def _box(self, state: str, p: PlantParameters, narrow: bool = False) -> dict[str, tuple[float, float]]:
-        """A state's band box, or with ``narrow`` its level box (module docstring)."""
+    def _floors(self, sig: E.WindowSignals, est: E.ParityEstimates) -> dict[str, float]:
+        """Each relation's residual floor: the median healthy-box MSE of healthy windows."""
+        healthy = E.relation_mse(sig, est, self.nominal_, self.boxes_["healthy"])
+        return {r: float(np.median(healthy[r])) for r in self.relations_}
+
+    def for_unit(self, unit: UnitFit, healthy: np.ndarray, margin: float = 0.0) -> ConditionFeatures:
+        """These features moved to another unit of the fleet (commissioning, :mod:`~hydrowatch.condition.commission`).
+
+        The unit's nominal parameters replace the trained unit's. Every fault level keeps its
+        meaning, a speed drop at 2 V on *this* unit: level × level_severity(unit) /
+        level_severity(trained unit) (:func:`~hydrowatch.plant.faults.level_severity`). That is
+        an extrapolation to loads the unit's healthy data never reached, so each band box is
+        widened by ``margin`` (a fraction of its bounds) on top of the trained one. Residual
+        floors are measured on the unit's own ``healthy`` windows (its DAQ's noise). Returns a new
+        fitted instance; ``self`` is unchanged.
+        """
+        self._check_fitted()
+        out = ConditionFeatures.from_dict(self.to_dict())
+        p = out.nominal_ = unit.parameters
+        for state, level in self.levels_.items():
+            fault, name = parse_state(state)
+            if fault is not None and name is not None:
+                out.levels_[state] = level * level_severity(fault, name, p) / level_severity(fault, name, self.nominal_)
+        out.boxes_ = {s: out._box(s, p, margin=margin) for s in out.states_}
+        out.level_boxes_ = {s: out._box(s, p, narrow=True) for s in out.states_}
+        w = E.check_windows(healthy, self.window)
+        ok = np.array([r is None for r in out.window_reasons(w)], dtype=bool)
+        if ok.sum() < 2:
+            raise DataError(f"commissioning needs at least 2 valid healthy windows. Got {int(ok.sum())}.")
+        sig = E.window_signals(w[ok], self.sensors, p, self.viscosity_coefficient, p)
+        out.floors_ = out._floors(sig, E.parity_estimates(sig, p))
+        out.unit_ = unit.summary()
+        return out
+
+    def _box(self, state: str, p: PlantParameters, narrow: bool = False,
+             margin: float = 0.0) -> dict[str, tuple[float, float]]:
+        """A state's band box (``margin`` widens its own fault's band further), or with ``narrow`` its level box."""
         return E.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
-                           BAND_MARGIN)
+                           BAND_MARGIN + margin)
 
     def _names(self) -> list[str]:
         if self.kind == "scores":
@@ -368,6 +401,7 @@ class ConditionFeatures:
         return {"params": self.get_params(), "nominal_parameters": self.nominal_.to_dict(),
                 "states": list(self.states_), "relations": list(self.relations_), "levels": self.levels_,
                 "boxes": {k: {f: list(b) for f, b in box.items()} for k, box in self.boxes_.items()},
+                "level_boxes": {k: {f: list(b) for f, b in box.items()} for k, box in self.level_boxes_.items()},
                 "floors": self.floors_, "unit": self.unit_}
 
     @classmethod
@@ -384,7 +418,11 @@ class ConditionFeatures:
                             for k, box in data["boxes"].items()}
             model.floors_ = {k: float(v) for k, v in data["floors"].items()}
             model.unit_ = dict(data.get("unit", {}))
-            model.level_boxes_ = {k: model._box(k, model.nominal_, narrow=True) for k in model.states_}
+            if "level_boxes" in data:  # saved since commissioning (boxes moved to a unit are not recomputed)
+                model.level_boxes_ = {k: {f: (float(b[0]), float(b[1])) for f, b in box.items()}
+                                      for k, box in data["level_boxes"].items()}
+            else:
+                model.level_boxes_ = {k: model._box(k, model.nominal_, narrow=True) for k in model.states_}
         except (KeyError, TypeError, IndexError) as exc:
             raise DataError(f"condition features must have params, states, relations, levels, boxes and floors. "
                             f"Missing/bad: {exc}.") from None

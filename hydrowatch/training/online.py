@@ -25,12 +25,13 @@ none for the parity method) and windows are counted from the first sample after 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.streaming import MachineWindow
 from hydrowatch.health.verdict import INVALID, Verdict
@@ -89,10 +90,12 @@ class OnlineScorer:
     stagger : bool, default False
         Parity method: each machine's windows start at a phase of its own (``ParityStreams``), so
         machines started together do not close their windows in the same update.
+    unit_model : callable, optional
+        Parity method: machine → its commissioned condition model or None (``ParityStreams``).
     """
 
     def __init__(self, bundle: ModelBundle, *, keep: int = 4, smoothing: int = 1, batch: int = 64,
-                 stagger: bool = False) -> None:
+                 stagger: bool = False, unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
         self.bundle = bundle
         self.keep = keep
         self.smoothing = smoothing
@@ -103,7 +106,7 @@ class OnlineScorer:
         self._parity: ParityStreams | None = None
         if isinstance(engine, ParityEngine):
             self._parity = ParityStreams(engine, (len(bundle.kl_rows), len(bundle.states)),
-                                         smoothing=smoothing, batch=batch, stagger=stagger)
+                                         smoothing=smoothing, batch=batch, stagger=stagger, unit_model=unit_model)
             return
         self._engine: EntropyEngine = engine  # the per-machine path below is the entropy method's
         if smoothing != 1:

@@ -27,11 +27,12 @@ Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (
 from __future__ import annotations
 
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.verdict import INVALID, Verdict
@@ -68,10 +69,15 @@ class ParityStreams:
         close their windows spread over the hop instead of all in one update (the judging work of
         the whole fleet at once), at the price of up to one hop of samples unjudged after each
         (re)start. False: windows start at the stream's first sample (as batch scoring does).
+    unit_model : callable, optional
+        Machine (``fleet/machine``) → its commissioned :class:`ConditionModel`, or None for the
+        fleet model (:class:`hydrowatch.training.commissioning.Commissionings`). A commissioned
+        model shares the fleet model's states, decision and open-set rule, so pooling and judging
+        stay one call; only the features (the unit's parameters) differ.
     """
 
     def __init__(self, engine: ParityEngine, shape: tuple[int, int], *, smoothing: int = 1, batch: int = 64,
-                 stagger: bool = False) -> None:
+                 stagger: bool = False, unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
         if int(smoothing) != smoothing or smoothing < 1:
             raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
         if int(batch) != batch or batch < 1:
@@ -79,6 +85,7 @@ class ParityStreams:
         self.model, self.columns, self.defaults = engine.model, list(engine.columns), dict(engine.defaults)
         self.window, self.hop, self.shape = engine.window, engine.hop, shape
         self.smoothing, self.batch, self.stagger = int(smoothing), int(batch), bool(stagger)
+        self.unit_model = unit_model
         self._slot: dict[str, int] = {}
         self._names: list[str] = []
         self._pools: list[ConditionStream | None] = []
@@ -256,6 +263,20 @@ class ParityStreams:
         self._next_t[slot] = np.nan if next_t is None else next_t
 
     # -- judging ------------------------------------------------------------------------------------
+    def _evidence(self, raw: np.ndarray, machines: list[str]) -> np.ndarray:
+        """``transform_evidence`` rows of closed windows, each by its machine's model (commissioned or fleet)."""
+        if self.unit_model is None:
+            return self.model.features_.transform_evidence(raw)
+        models = [self.unit_model(m) or self.model for m in machines]
+        rows: np.ndarray | None = None
+        for model in {id(m): m for m in models}.values():
+            mine = np.array([m is model for m in models])
+            part = model.features_.transform_evidence(raw[mine])
+            rows = np.empty((raw.shape[0], part.shape[1])) if rows is None else rows
+            rows[mine] = part
+        assert rows is not None
+        return rows
+
     def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:
         """Verdicts and ``kl`` scores of closed windows, ``batch`` windows per call, in closing order."""
         out = []
@@ -264,7 +285,7 @@ class ParityStreams:
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
             raw = np.stack([c.samples for c in part])
-            rows = features.transform_evidence(raw)
+            rows = self._evidence(raw, [self._names[c.slot] for c in part])
             reasons = features.window_reasons(raw)
             evidence = []
             for c, row, why in zip(part, rows, reasons):

@@ -19,7 +19,7 @@ import argparse
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from hydrowatch.bus import (
@@ -40,8 +40,9 @@ from hydrowatch.log import event, get_logger
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
     from hydrowatch.bus import Message
+    from hydrowatch.condition import ConditionModel
     from hydrowatch.training.bundle import ModelBundle
-    from hydrowatch.training.online import ChunkBatch, WindowVerdict
+    from hydrowatch.training.online import ChunkBatch, OnlineScorer, WindowVerdict
 
 NAME = "scorer"
 HELP = "score sensor chunks online: publish relative entropies (…/kl) and verdicts (…/health) per window"
@@ -70,6 +71,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask publishers' history for chunks missing from a machine's stream (a missed "
                              "chunk then invalidates its window)")
+    parser.add_argument("--commissioning", default=None, metavar="FOLDER",
+                        help="parity bundles: per-machine bundles written by `hydrowatch commission --out FOLDER/ID`; "
+                             "a machine without one (or commissioned from another fleet model version) is judged by "
+                             "the fleet model, with a logged warning")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
@@ -101,24 +106,54 @@ class _Model:
         return True
 
 
-def _publish(publisher: Publisher, bundle: ModelBundle, verdicts: list[WindowVerdict]) -> None:
+class _Units:
+    """The machines' commissionings (``--commissioning``) for the fleet bundle in use, or none."""
+
+    def __init__(self, folder: str | None, fleet: ModelBundle) -> None:
+        from hydrowatch.training.commissioning import Commissionings
+
+        self.found = None if folder is None or fleet.method != "parity" else Commissionings(folder, fleet)
+        self.fleet = fleet
+
+    def bundle(self, stream: str) -> ModelBundle:
+        """The bundle judging ``fleet/machine``: its commissioning, else the fleet's."""
+        found = None if self.found is None else self.found.for_machine(stream.split("/", 1)[1])
+        return found or self.fleet
+
+    def unit_model(self) -> Callable[[str], ConditionModel | None] | None:
+        """What ``OnlineScorer(unit_model=...)`` takes (None without commissionings)."""
+        if self.found is None:
+            return None
+        return lambda stream: self.bundle(stream).condition
+
+
+def _publish(publisher: Publisher, units: _Units, verdicts: list[WindowVerdict]) -> None:
     from hydrowatch.training.messages import kl_batch, verdict_batch
 
     for item in verdicts:
         fleet, machine = item.machine.split("/", 1)
+        bundle = units.bundle(item.machine)
         kl = kl_batch(item, bundle.kl_rows, bundle.states, bundle.version)
         if kl is not None:
             publisher.put(key(fleet, machine, "kl"), kl)
         publisher.put(key(fleet, machine, "health"), verdict_batch(item, bundle.version))
 
 
-def run(args: argparse.Namespace, stop: threading.Event) -> int:
-    """Score until ``stop`` (or ``--seconds``); returns 0."""
+def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineScorer:
     from hydrowatch.training.online import OnlineScorer
     from hydrowatch.training.scoring import smoothing_for
 
+    # an entropy bundle cannot pool windows: its verdicts are per window
+    parity = model.bundle.method == "parity"
+    return OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing) if parity else 1,
+                        stagger=args.stagger, unit_model=units.unit_model())
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Score until ``stop`` (or ``--seconds``); returns 0."""
     model = _Model(args)
-    scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing), stagger=args.stagger)
+    units = _Units(args.commissioning, model.bundle)
+    scorer = _scorer(model, units, args)
     freeze_heap()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     counters = {"verdicts": 0}
@@ -134,23 +169,15 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             reporter.status = "running"
             event(log, "scorer started", model=model.bundle.version, shard=str(args.shard), fleet=args.fleet)
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                chunks = _gather(subscriber, args.tick, scorer.columns, recovery)
-                if model.moved():
-                    # an entropy bundle cannot pool windows: its verdicts are per window
-                    parity = model.bundle.method == "parity"
-                    scorer = OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing)
-                                          if parity else 1,
-                                          stagger=args.stagger)
-                    freeze_heap()
-                if chunks:
-                    verdicts = scorer.update(chunks)
-                    _publish(publisher, model.bundle, verdicts)
-                    counters["verdicts"] += len(verdicts)
+                units, scorer, verdicts = _step(model, units, scorer, args,
+                                                lambda columns: _gather(subscriber, args.tick, columns, recovery))
+                _publish(publisher, units, verdicts)
+                counters["verdicts"] += len(verdicts)
             reporter.status = "draining"
             subscriber.close()
             last = list(subscriber.drain())
             rest = _chunks(recovery.observe(last) + recovery.wait() if recovery else last, scorer.columns)
-            _publish(publisher, model.bundle, scorer.update(rest))
+            _publish(publisher, units, scorer.update(rest))
         finally:
             subscriber.close()
             reporter.stop()
@@ -159,6 +186,18 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         event(log, "undecodable messages skipped", logging.WARNING, count=subscriber.undecodable_total)
     event(log, "scorer stopped", verdicts=counters["verdicts"], machines=len(scorer.machines), samples=scorer.samples)
     return 0
+
+
+def _step(model: _Model, units: _Units, scorer: OnlineScorer, args: argparse.Namespace,
+          gather: Callable[[Sequence[str]], ChunkBatch | None]) -> tuple[_Units, OnlineScorer, list[WindowVerdict]]:
+    """One turn of the loop: switch model if the alias moved, *then* gather chunks of the channels the scorer in
+    use reads (a new bundle may read another channel, e.g. temperature) and score them."""
+    if model.moved():
+        units = _Units(args.commissioning, model.bundle)
+        scorer = _scorer(model, units, args)
+        freeze_heap()
+    chunks = gather(scorer.columns)
+    return units, scorer, scorer.update(chunks) if chunks else []
 
 
 def _chunks(messages: list[Message], columns: Sequence[str]) -> ChunkBatch:

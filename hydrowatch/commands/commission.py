@@ -1,0 +1,50 @@
+"""``hydrowatch commission``: adapt a fleet model to one machine from its healthy operation (contract: commission).
+
+Writes the machine's bundle to ``--out`` (``score --model OUT`` and the scorer's
+``--commissioning FOLDER`` read it). A recording that cannot commission the unit is refused with
+the reason, nothing is written and the machine keeps the fleet model. The work is
+:func:`hydrowatch.training.commissioning.commission_bundle`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "commission"
+HELP = "adapt a trained parity model to one machine from >= 5 min of its healthy operation on any working command"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--model``, ``--data``, ``--machine``, ``--out``, ``--json``, ``--tracking-uri``."""
+    parser.add_argument("--model", required=True, help="fleet model bundle folder or models:/NAME@ALIAS")
+    parser.add_argument("--data", required=True, type=Path, help="the machine's healthy recording(s): a file or folder")
+    parser.add_argument("--machine", required=True, help="the machine's id (as in its plant messages)")
+    parser.add_argument("--out", required=True, type=Path, help="where to write the machine's bundle (a folder)")
+    parser.add_argument("--json", action="store_true", help="print the commissioning as one JSON object")
+    parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
+    from hydrowatch.io import read_recording
+    from hydrowatch.training import load_bundle, recording_files
+    from hydrowatch.training.commissioning import commission_bundle
+
+    fleet = load_bundle(args.model, args.tracking_uri)
+    recordings = []
+    for path in recording_files(args.data):
+        rec = read_recording(path)
+        rec.meta.setdefault("source", str(path))
+        recordings.append(rec)
+    bundle = commission_bundle(fleet, recordings, args.machine)
+    bundle.save(args.out)
+    info = {"machine": args.machine, "out": str(args.out), "version": bundle.version, **bundle.manifest["commissioned"]}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        unit = info["unit"]
+        print(f"{args.machine}: commissioned from {fleet.version} on {unit['seconds']:.0f} s "
+              f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows) -> {args.out} ({bundle.version})")
+    return 0

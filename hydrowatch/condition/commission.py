@@ -1,0 +1,165 @@
+"""Commissioning a fleet: a condition model trained on one unit, adapted to another from its healthy operation.
+
+Fault recordings exist for one test stand (or the simulator); every other machine of a fleet only
+ever records its healthy self. The parity method needs nothing else: the health states are
+boxes around a unit's own nominal parameters (:mod:`hydrowatch.condition.unit`), so
+commissioning identifies the new unit from ≥ 5 minutes of its healthy operation on any working
+command, starting from (and regularised towards) the trained unit's parameters, and moves the
+boxes, levels and residual floors to it (:meth:`ConditionFeatures.for_unit`). The decision
+(ParityRule, its temperature) and the open-set rule work on ratios to those floors and are kept.
+
+The recording is refused, and the unit keeps the fleet model, when it cannot commission the unit:
+
+- **too short**: under :data:`MIN_SECONDS` of valid windows;
+- **a command that never loads the parts**: the command's 5–95 % spread under
+  :data:`MIN_COMMAND_SPREAD` (a hold: inertia, damping and the valve's gain cannot be told
+  apart), or the motor turning in under :data:`MIN_MOVING` of the samples;
+- **a fault already present**: an identified parameter that a trained fault moves lies more than
+  :data:`FAULT_FRACTION` of the way from the trained unit to that fault's warning level (load:
+  brake torque TL; motor_leak: Ctm; pump_leak: Cp), or the commissioned model reads fewer than
+  :data:`MIN_HEALTHY` of the recording's own windows ``healthy``. Build spread between units
+  (±20 % TL, ±50 % leakage) stays below the first; a valve_coil or relief_spring fault is a change
+  of Kq or Pc as large as the spread between units and cannot be told from it (docs/unseen-units.md).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.condition import estimates as E
+from hydrowatch.condition import parity
+from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.unit import UnitFit, identify_unit
+from hydrowatch.errors import DataError
+from hydrowatch.log import event, get_logger
+from hydrowatch.plant.faults import level_severity
+from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.recording import SAMPLE_RATE_HZ
+
+_log = get_logger(__name__)
+
+MIN_SECONDS = 300.0
+"""Healthy operation needed, s of valid windows (the issue's ≥ 5 minutes)."""
+MIN_COMMAND_SPREAD = 1.0
+"""Smallest 5–95 % spread of the valve command, V."""
+MOVING_SPEED = 2.0
+"""Gearbox speed, rad/s, above which the motor counts as turning (a healthy 0.5–3.5 V duty cycle: below it 5 % of
+the time; a motor_leak warning on it: 10–20 %)."""
+MIN_MOVING = 0.5
+"""Smallest share of samples with the motor turning."""
+FAULT_FRACTION = 0.6
+"""Share of the way from the trained unit to a fault's warning level at which a parameter reads as that fault."""
+BAND_WIDENING = 0.3
+"""Extra width of each fault band on a commissioned unit (:meth:`ConditionFeatures.for_unit`): the levels there are
+extrapolated from healthy data; measured on duty cycles with 1–3× the default sensor noise, +17 to +29 % too high."""
+MIN_HEALTHY = 0.9
+"""Smallest share of the recording's own windows the commissioned model must read ``healthy``."""
+
+
+class CommissioningError(DataError):
+    """The healthy recording cannot commission the unit; the message says what is missing."""
+
+
+@dataclass(frozen=True)
+class Commissioning:
+    """A commissioned model and what commissioning measured.
+
+    Attributes
+    ----------
+    model : ConditionModel
+        The fleet model moved to the unit (decision and open-set rule shared with the fleet model).
+    unit : UnitFit
+        The unit's parameters relative to the trained unit's.
+    seconds : float
+        Valid healthy operation used, s.
+    healthy_share : float
+        Share of the recording's own valid windows the commissioned model reads ``healthy``.
+    """
+
+    model: ConditionModel
+    unit: UnitFit
+    seconds: float
+    healthy_share: float
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-able summary (the bundle manifest's ``commissioned.unit``)."""
+        return {**self.unit.summary(), "seconds": round(self.seconds, 1), "healthy_share": round(self.healthy_share, 4)}
+
+
+def implied_severities(fleet: PlantParameters, unit: PlantParameters) -> dict[str, float]:
+    """Severity of each fault that a parameter-level difference between the units would mean (plant/faults.py scales).
+
+    load: TL_unit / TL_fleet − 1; motor_leak: (Ctm_unit − Ctm_fleet) / c_ref; pump_leak:
+    (Cp + Cpl)_unit − (Cp + Cpl)_fleet over c_ref, with c_ref = Dp·ωp / Pc of the fleet unit.
+    """
+    c_ref = parity.reference_conductance(fleet)
+    return {"load": unit.TL / fleet.TL - 1.0, "motor_leak": (unit.Ctm - fleet.Ctm) / c_ref,
+            "pump_leak": (unit.Cp + unit.Cpl - fleet.Cp - fleet.Cpl) / c_ref}
+
+
+def check_excitation(windows: np.ndarray, seconds: float) -> None:
+    """Refuse (:class:`CommissioningError`) a recording too short or on a command that never loads the parts."""
+    if seconds < MIN_SECONDS:
+        raise CommissioningError(f"commissioning needs at least {MIN_SECONDS:.0f} s of valid healthy operation. "
+                                 f"Got {seconds:.0f} s; record longer on a working command.")
+    u = windows[:, :, 0]
+    spread = float(np.quantile(u, 0.95) - np.quantile(u, 0.05))
+    if spread < MIN_COMMAND_SPREAD:
+        raise CommissioningError(f"the command must move over at least {MIN_COMMAND_SPREAD} V (5–95 % spread) to "
+                                 f"load the parts. Got {spread:.2f} V: a hold cannot tell inertia, damping and valve "
+                                 "gain apart; record a duty cycle or filtered noise.")
+    moving = float(np.mean(np.abs(windows[:, :, 2]) > MOVING_SPEED))
+    if moving < MIN_MOVING:
+        raise CommissioningError(f"the motor must turn (|speed| > {MOVING_SPEED} rad/s) in at least "
+                                 f"{MIN_MOVING:.0%} of the samples. Got {moving:.0%}; record the unit working.")
+
+
+def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
+    """Adapt a fitted condition model to another unit from raw windows of it running healthy.
+
+    Parameters
+    ----------
+    model : ConditionModel
+        The fleet model (trained on one unit's health states).
+    windows : ndarray, shape (m, window, 4 or 5)
+        Consecutive raw windows of the unit in its healthy state on any working command
+        (:func:`~hydrowatch.condition.features.windows_from_recording` with the model's window and hop).
+
+    Raises
+    ------
+    CommissioningError
+        Too short, a command that never loads the parts, or a fault already present (module docstring).
+    """
+    model._check_fitted()
+    features = model.features_
+    w = E.check_windows(np.asarray(windows, dtype=np.float64), features.window)
+    ok = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
+    seconds = float(ok.sum()) * min(features.hop, features.window) / SAMPLE_RATE_HZ
+    check_excitation(w[ok], seconds)
+    unit = identify_unit(w[ok], features.nominal_, features.sensors, features.viscosity_coefficient)
+    for fault, severity in implied_severities(features.nominal_, unit.parameters).items():
+        warning = level_severity(fault, "warning", features.nominal_)
+        if severity > FAULT_FRACTION * warning:
+            raise CommissioningError(f"the healthy recording looks like a {fault} fault already present: its "
+                                     f"parameters mean severity {severity:.2f} (warning {warning:.2f}) against "
+                                     "the trained unit. Repair the unit, or commission on a recording from when "
+                                     "it was healthy.")
+    moved = ConditionModel(pooled_excess=model.pooled_excess_)
+    moved.pooled_excess_ = model.pooled_excess_
+    moved.features_ = features.for_unit(unit, w[ok], BAND_WIDENING)
+    moved.decision_, moved.open_set_ = model.decision_, model.open_set_
+    verdicts = moved.predict(w[ok])
+    healthy = float(np.mean(verdicts == "healthy"))
+    if healthy < MIN_HEALTHY:
+        states, counts = np.unique(verdicts[verdicts != "healthy"], return_counts=True)
+        top = ", ".join(f"{s} {c / verdicts.size:.0%}" for s, c in sorted(zip(states, counts), key=lambda x: -x[1])[:3])
+        raise CommissioningError(f"the commissioned model must read its own healthy recording healthy in at least "
+                                 f"{MIN_HEALTHY:.0%} of windows. Got {healthy:.0%} ({top}): a fault may already be "
+                                 "present, or the recording is not of this kind of unit.")
+    event(_log, "unit commissioned", logging.INFO, seconds=round(seconds), healthy=round(healthy, 3),
+          **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
+    return Commissioning(moved, unit, seconds, healthy)

@@ -1,0 +1,108 @@
+"""Commissioning bundles: a fleet's model bundle adapted to one machine, stored and found per machine id.
+
+:func:`commission_bundle` turns a parity bundle and healthy recordings of one machine into that
+machine's bundle (:func:`hydrowatch.condition.commission.commission`); its manifest gains
+
+    "commissioned": {"machine": ID, "base_version": FLEET_VERSION, "sources": [...], "unit": {...}}
+
+A folder of commissionings (``hydrowatch commission --out FOLDER/ID`` for each machine) is read
+by :class:`Commissionings`, which the scorer service uses to judge each machine with its own
+bundle and to fall back to the fleet bundle, with a logged warning, for a machine it has none
+for or one commissioned from another fleet version.
+
+The study's method (entropy bundles) is refused: its base distributions are prediction-error
+distributions of the trained unit's reference model in each health state, and a reference model
+refitted on another unit's healthy data would need that unit's fault recordings to rebuild them.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.condition import windows_from_recording
+from hydrowatch.condition.commission import CommissioningError, commission
+from hydrowatch.log import event, get_logger
+from hydrowatch.recording import Recording
+from hydrowatch.training.bundle import MANIFEST, ModelBundle
+
+_log = get_logger(__name__)
+
+
+def commission_bundle(bundle: ModelBundle, recordings: list[Recording], machine: str) -> ModelBundle:
+    """The fleet ``bundle`` adapted to ``machine`` from its healthy ``recordings`` (not yet saved).
+
+    Raises
+    ------
+    CommissioningError
+        For an entropy bundle, an empty machine id, or recordings that cannot commission the unit
+        (too short, a command that never loads the parts, a fault already present).
+    """
+    if not machine.strip():
+        raise CommissioningError("--machine must name the machine (its id in the plant's messages). Got ''.")
+    if bundle.condition is None:
+        raise CommissioningError("commissioning adapts parity bundles (train --method parity, the default). Got an "
+                                 "entropy bundle: its base distributions need the unit's own fault recordings; "
+                                 "train it on this unit instead.")
+    temperature = bool(bundle.manifest.get("temperature"))
+    parts = []
+    for rec in recordings:
+        if temperature and "temperature" not in rec.channels:
+            raise CommissioningError("the recording must carry 'temperature': the model was trained with it. Got "
+                                     f"channels {sorted(rec.channels)}.", str(rec.meta.get("source", "")) or None)
+        parts.append(windows_from_recording(rec, bundle.window, bundle.hop, temperature=temperature))
+    windows = np.concatenate(parts) if parts else np.empty((0, bundle.window, 4))
+    result = commission(bundle.condition, windows)
+    manifest: dict[str, Any] = copy.deepcopy(bundle.manifest)
+    manifest.pop("version", None)
+    sources = [str(r.meta.get("source", "")) for r in recordings]
+    manifest["commissioned"] = {"machine": machine, "base_version": bundle.version, "sources": sources,
+                                "unit": result.summary()}
+    return ModelBundle({}, None, manifest, result.model)
+
+
+class Commissionings:
+    """Per-machine bundles in a folder (``FOLDER/<machine>/manifest.json``), checked against the fleet bundle.
+
+    Parameters
+    ----------
+    folder : path
+        Written by ``hydrowatch commission --out FOLDER/<machine>``.
+    fleet : ModelBundle
+        The fleet bundle the scorer runs; a commissioning of another fleet version is not used.
+    """
+
+    def __init__(self, folder: str | Path, fleet: ModelBundle) -> None:
+        self.folder = Path(folder)
+        self.fleet = fleet
+        self._cache: dict[str, ModelBundle | None] = {}
+
+    def for_machine(self, machine: str) -> ModelBundle | None:
+        """The machine's commissioned bundle, or None (logged once) when it has none usable."""
+        if machine in self._cache:
+            return self._cache[machine]
+        found: ModelBundle | None = None
+        path = self.folder / machine
+        if not (path / MANIFEST).is_file():
+            event(_log, "no commissioning for machine, using the fleet model", machine=machine, folder=str(self.folder))
+        else:
+            try:
+                bundle = ModelBundle.load(path)
+            except Exception as exc:  # a broken folder must not stop the scorer: fall back and say why
+                event(_log, "commissioning unreadable, using the fleet model", machine=machine, error=str(exc))
+            else:
+                base = bundle.manifest.get("commissioned", {}).get("base_version")
+                if base != self.fleet.version:
+                    event(_log, "commissioning is of another fleet model version, using the fleet model",
+                          machine=machine, commissioned_from=base, fleet=self.fleet.version)
+                else:
+                    found = bundle
+        self._cache[machine] = found
+        return found
+
+    def forget(self) -> None:
+        """Drop what was read (after a fleet model switch or a new commissioning)."""
+        self._cache.clear()

@@ -1,0 +1,152 @@
+"""Units that are not the defaults (issue 11): identification, pooled vs per-window, commissioning and its refusals.
+
+Small random units (hydrowatch.plant.population): every parameter ±20 %, leakage and damping
+±50 %, 1–3× the default sensor noise; tested on a later day (drift ±3–5 %) on a duty cycle.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hydrowatch.cli import main
+from hydrowatch.condition import ConditionModel
+from hydrowatch.condition.commission import CommissioningError, commission
+from hydrowatch.condition.unit import identify_unit
+from hydrowatch.io.codec import sensor_chunk_from_arrays
+from hydrowatch.plant import PlantSimulator
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
+from hydrowatch.plant.faults import state_parameters
+from hydrowatch.plant.fleet import simulate_states
+from hydrowatch.plant.population import later_day, random_unit
+from hydrowatch.training.bundle import ModelBundle
+from hydrowatch.training.commissioning import Commissionings
+from hydrowatch.training.online import OnlineScorer, chunks_from_batches
+
+STATES = ("healthy", "load_warning", "motor_leak_warning")
+W = 1000
+
+
+def windows(states: tuple[str, ...], unit, u: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+    """Raw windows (n, W, 4) of each state of ``unit`` under command ``u``."""
+    sim = PlantSimulator([state_parameters(s, unit) for s in states], seed=seed)
+    sim.settle(float(u[0]))
+    out = sim.step(np.broadcast_to(u, (len(states), u.size)))
+    n = u.size // W * W
+    return {s: np.stack([out[c][i, :n].reshape(-1, W) for c in ("voltage", "flow", "speed", "torque")], axis=-1)
+            for i, s in enumerate(states)}
+
+
+@pytest.fixture(scope="module")
+def units() -> list:
+    rng = np.random.default_rng(2611)
+    return [(unit, later_day(unit, rng)) for unit in (random_unit(rng) for _ in range(3))]
+
+
+@pytest.fixture(scope="module")
+def models(units) -> list[ConditionModel]:
+    """Each unit's own model, trained on 150 s of filtered noise 0–4 V per state (defaults)."""
+    return [ConditionModel().fit(windows(STATES, unit, filtered_noise(150, (0, 4), seed=k), k))
+            for k, (unit, _) in enumerate(units[:2])]
+
+
+def accuracy(model: ConditionModel, test: dict[str, np.ndarray], smoothing: int) -> dict[str, float]:
+    return {s: float(np.mean(model.predict(w, smoothing) == s)) for s, w in test.items()}
+
+
+def test_identify_unit_recovers_the_units_parameters(units) -> None:
+    unit, _ = units[2]
+    healthy = windows(("healthy",), unit, filtered_noise(150, (0, 4), seed=9), 9)["healthy"]
+    fit = identify_unit(healthy)
+    for name in ("JL", "TL", "Dm", "Kq"):  # measured: within 3 % on filtered noise
+        assert getattr(fit.parameters, name) / getattr(unit, name) == pytest.approx(1.0, abs=0.05), name
+    assert fit.rms_after["motor"] < 0.2 * fit.rms_before["motor"]
+    assert fit.rms_after["load"] < 0.5 * fit.rms_before["load"]
+
+
+def test_pooling_never_makes_a_units_verdicts_worse_and_healthy_reads_healthy(units, models) -> None:
+    for k, model in enumerate(models):
+        test = windows(STATES, units[k][1], duty_cycle(120, (0.5, 3.5), seed=20 + k), 30 + k)
+        single, pooled = accuracy(model, test, 1), accuracy(model, test, 12)
+        assert np.mean(list(pooled.values())) >= np.mean(list(single.values())) - 1e-9, (single, pooled)
+        assert pooled["healthy"] >= 0.99 and single["healthy"] >= 0.99
+
+
+def test_a_commissioned_unit_beats_the_uncommissioned_one(units, models) -> None:
+    fleet = models[0]
+    unit, day = units[1]
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    done = commission(fleet, healthy)
+    assert done.seconds == pytest.approx(300.0) and done.healthy_share >= 0.9
+    test = windows(STATES, day, duty_cycle(120, (0.5, 3.5), seed=42), 42)
+    before, after = accuracy(fleet, test, 12), accuracy(done.model, test, 12)
+    assert np.mean(list(after.values())) >= np.mean(list(before.values())) + 0.3, (before, after)
+    assert after["healthy"] >= 0.99
+    assert fleet.features_.nominal_ is not done.model.features_.nominal_  # the fleet model is left as it was
+
+
+@pytest.mark.parametrize("case, says", [
+    ("short", "at least 300 s"),
+    ("hold", "must move over at least"),
+    ("load fault", "load fault already present"),
+    ("motor leak", "motor_leak fault already present"),
+])
+def test_commissioning_refuses_what_cannot_commission_a_unit(units, models, case: str, says: str) -> None:
+    unit, _ = units[1]
+    state, u = {"short": ("healthy", duty_cycle(200, (0.5, 3.5), seed=5)),
+                "hold": ("healthy", np.full(60_000, 2.0)),
+                "load fault": ("load_warning", duty_cycle(300, (0.5, 3.5), seed=5)),
+                "motor leak": ("motor_leak_warning", duty_cycle(300, (0.5, 3.5), seed=5))}[case]
+    with pytest.raises(CommissioningError, match=says):
+        commission(models[0], windows((state,), unit, u, 5)[state])
+
+
+def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path, units, capsys) -> None:
+    from hydrowatch.io import write_recording
+
+    train_dir = tmp_path / "train"
+    train_dir.mkdir()
+    for rec in simulate_states(STATES, seconds=60, seed=3):
+        write_recording(rec, train_dir / f"{rec.state}.parquet")
+    assert main(["train", "--data", str(train_dir), "--method", "parity", "--out", str(tmp_path / "fleet"),
+                 "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", "--experiment", "test"]) == 0
+    unit, day = units[1]
+    for name, seconds in (("short", 100), ("healthy", 300)):
+        rec = next(simulate_states(["healthy"], seconds=seconds, nominal=unit, seed=4,
+                                   command=duty_cycle(seconds, (0.5, 3.5), seed=4)))
+        write_recording(rec, tmp_path / f"{name}.parquet")
+    capsys.readouterr()
+    assert main(["commission", "--model", str(tmp_path / "fleet"), "--data", str(tmp_path / "short.parquet"),
+                 "--machine", "m7", "--out", str(tmp_path / "units" / "m7")]) == 2
+    assert "at least 300 s" in capsys.readouterr().err and not (tmp_path / "units" / "m7").exists()
+    assert main(["commission", "--model", str(tmp_path / "fleet"), "--data", str(tmp_path / "healthy.parquet"),
+                 "--machine", "m7", "--out", str(tmp_path / "units" / "m7"), "--json"]) == 0
+    import json
+
+    info = json.loads(capsys.readouterr().out)
+    assert info["machine"] == "m7" and info["base_version"].startswith("sha256:") and info["unit"]["seconds"] >= 300
+    test = next(simulate_states(["healthy"], seconds=60, nominal=day, seed=8,
+                                command=duty_cycle(60, (0.5, 3.5), seed=8)))
+    write_recording(test, tmp_path / "day.parquet")
+    assert main(["score", "--model", str(tmp_path / "units" / "m7"), "--data", str(tmp_path / "day.parquet"),
+                 "--json"]) == 0
+    scored = json.loads(capsys.readouterr().out)
+    assert scored["summary"]["model_version"] == info["version"]
+    assert scored["summary"]["counts"].get("healthy", 0) >= 0.9 * scored["summary"]["windows"]
+
+    # the scorer's view: m7 is judged by its commissioning, m8 (none) by the fleet model, the same samples
+    fleet = ModelBundle.load(tmp_path / "fleet")
+    units = Commissionings(tmp_path / "units", fleet)
+    assert units.for_machine("m7").version == info["version"] and units.for_machine("m8") is None
+    scorer = OnlineScorer(fleet, smoothing=12, unit_model=lambda m: getattr(units.for_machine(m.split("/")[1]),
+                                                                            "condition", None))
+    cols = scorer.columns
+    chunk = sensor_chunk_from_arrays(test.t, {c: test[c] for c in cols})
+    got = scorer.update(chunks_from_batches(["t/m7", "t/m8"], [chunk, chunk], cols))
+    states = {m: [v.verdict.state for v in got if v.machine == f"t/{m}"] for m in ("m7", "m8")}
+    assert states["m7"] == [w["state"] for w in scored["windows"]]
+    assert states["m7"].count("healthy") > states["m8"].count("healthy")
+    stale = Commissionings(tmp_path / "units", ModelBundle.load(tmp_path / "fleet", version="other"))
+    assert stale.for_machine("m7") is None  # commissioned from another fleet version: the fleet model judges
