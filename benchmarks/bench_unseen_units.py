@@ -188,6 +188,8 @@ def main() -> None:
     ap.add_argument("--test-seconds", type=float, default=100.0)
     ap.add_argument("--states", choices=("7", "13", "both"), default="both")
     ap.add_argument("--commission", action="store_true", help="also the commissioning section")
+    ap.add_argument("--entropy", type=int, default=0, metavar="N",
+                    help="also the study's method (NARX and BJ bundles, 7 states) on the first N units")
     ap.add_argument("--json", default=None, help="write the figures here")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -215,6 +217,8 @@ def main() -> None:
                    for k, v in tallies.items()}
         if args.commission:
             figures.update(commissioning(first, units, sets, args))
+        if args.entropy:
+            figures.update(study_method(units[: args.entropy], args))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(figures, f, indent=1)
@@ -245,6 +249,40 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
         out[f"{k} states, commissioned"] = summarise(commissioned, f"{k} states, first unit's model, commissioned")
         out[f"{k} states, commissioning refused"] = refused
         print(f"commissioning refused on {refused} of {len(units) - 1} healthy units")
+    return out
+
+
+def study_method(units: list[tuple[PlantParameters, PlantParameters]], args: argparse.Namespace) -> dict[str, object]:
+    """The study's method (``train --method entropy``, NARX and BJ references, defaults) per unit, per window."""
+    from hydrowatch.plant.fleet import simulate_states
+    from hydrowatch.training.options import TrainingSettings
+    from hydrowatch.training.scoring import score_recording
+    from hydrowatch.training.trainer import train as train_bundle
+
+    out: dict[str, object] = {}
+    for reference in ("narx", "bj"):
+        settings = TrainingSettings(method="entropy", reference=reference)
+        seconds = settings.plan.samples_per_state / 200.0 + 1.0
+        acc: dict[str, list[float]] = defaultdict(list)
+        for j, (unit, day) in enumerate(units):
+            seed = 70_000 + 1000 * j + args.seed
+            grouped = {r.state: [r] for r in simulate_states(STUDY_STATES, seconds=seconds, nominal=unit, seed=seed,
+                                                               command=filtered_noise(seconds, (0, 4), seed=seed))}
+            bundle = train_bundle(grouped, settings).bundle
+            test_s = args.test_seconds
+            for condition, u in (("like training", filtered_noise(test_s, (0, 4), seed=seed + 2)),
+                                 ("duty cycle", duty_cycle(2 * test_s, (0.5, 3.5), seed=seed + 4)),
+                                 ("slow noise", filtered_noise(test_s, (0.5, 3.5), seed=seed + 5, pole=0.98))):
+                recs = simulate_states(STUDY_STATES, seconds=u.size / 200.0, nominal=day, seed=seed + 9, command=u)
+                scored = [score_recording(bundle, r)["summary"]["accuracy"] for r in recs]
+                acc[condition].append(100.0 * float(np.mean([a for a in scored if a is not None])))
+            print(f"study's method ({reference}): unit {j + 1}/{len(units)} done", flush=True)
+        print(f"\n## study's method, {reference.upper()} reference, 7 states, per window: {len(units)} units, "
+              "% right, median / worst unit")
+        for condition, values in acc.items():
+            v = np.array(values)
+            print(f"| {condition} | {np.median(v):.1f} / {v.min():.1f} |")
+            out[f"study {reference}|{condition}"] = {"median": float(np.median(v)), "worst": float(v.min())}
     return out
 
 

@@ -44,18 +44,21 @@ def test_trailing_evidence_pools_valid_windows_only():
 
 
 def test_one_machine_has_one_severity():
-    # 2 states, 1 relation: state 1's own fault; windows agree on it (0.30) or not (0.25 / 0.35).
+    # 2 states, 1 relation: state 1's own fault; windows agree on it (0.30), or differ within the tolerance
+    # (0.28 / 0.32) or beyond it (0.22 / 0.38).
     layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.2, 0.4]], [[0, 0], [0.29, 0.31]]]))
     ratios = np.ones((2, 4))  # band (2 states) and level (2 states) ratios
     agree = np.column_stack([ratios, [[0.0, 0.30], [0.0, 0.30]], [[0.0, 100.0], [0.0, 100.0]]])
-    differ = agree.copy()
-    differ[:, 5] = [0.25, 0.35]
     g, a = trailing_evidence(agree, 2, layout)
     np.testing.assert_allclose(a[1], 1.0)
+    close, differ = agree.copy(), agree.copy()
+    close[:, 5], differ[:, 5] = [0.28, 0.32], [0.22, 0.38]
+    g, a = trailing_evidence(close, 2, layout)
+    np.testing.assert_allclose(a[1], 1.0)  # 0.02 from the common 0.30 is within δ = 0.15 · 0.30: no cost
     g, a = trailing_evidence(differ, 2, layout)
-    # Band box [0.2, 0.4] holds both alone; together they share 0.30: 100·0.05² = 0.25 more per window.
-    # The level box [0.29, 0.31] held them 0.04 away already: 100·(0.05² − 0.04²) more.
-    np.testing.assert_allclose(a[1, [1, 3]], [1.25, 1.0 + 100 * (0.05**2 - 0.04**2)])
+    # Band box [0.2, 0.4] holds both alone; together each may sit at most 0.045 from 0.30: 100·0.035² more.
+    # The level box [0.29, 0.31] held them at its edges already, inside the tolerance: nothing more.
+    np.testing.assert_allclose(a[1, [1, 3]], [1.0 + 100 * 0.035**2, 1.0])
     with pytest.raises(DataError):
         trailing_evidence(agree[:, :5], 2, layout)
 
@@ -73,7 +76,10 @@ def test_an_unseen_look_alike_is_rejected_per_machine(trained):
     model = ConditionModel().fit({s: w for s, w in train.items() if not s.startswith("relief_spring")})
     test = windows_of(("relief_spring_alert", "valve_coil_alert", "healthy"), duty_cycle(120, (0, 4), seed=3), seed=4)
     unknown = {n: {s: np.mean(model.predict(w, smoothing=n) == "unknown") for s, w in test.items()} for n in (1, 12)}
-    assert unknown[1]["relief_spring_alert"] < 0.2 < 0.6 < unknown[12]["relief_spring_alert"]  # 4 % → 75 %
+    # 4 % → 25 % (75 % before the open set tolerated a 15 % severity spread over the pool, evidence.py: the price
+    # of healthy and pump-leak machines of other units no longer reading unknown when pooled; on the unit
+    # population the unseen faults pooled over 12 windows read unknown 97.5 % instead of 98.2 %, median unit).
+    assert unknown[1]["relief_spring_alert"] < 0.1 < 0.2 < unknown[12]["relief_spring_alert"]
     assert unknown[12]["valve_coil_alert"] == 0.0 and unknown[12]["healthy"] == 0.0
 
 

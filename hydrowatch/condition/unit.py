@@ -36,7 +36,7 @@ load relation (nor P̂L), without flow no motor or valve relation. Those keep th
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,7 +171,8 @@ def _valve_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
 
 
 def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, sensors: Sequence[str] = SENSORS,
-                  viscosity_coefficient: float = 0.04) -> UnitFit:
+                  viscosity_coefficient: float = 0.04,
+                  parameters: Mapping[str, tuple[str, ...]] = RELATION_PARAMETERS) -> UnitFit:
     """Identify a unit's nominal parameters from raw windows of it running healthy (module docstring).
 
     Parameters
@@ -185,6 +186,8 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
         The sensors the unit has; relations they cannot test are not identified.
     viscosity_coefficient : float, default 0.04
         k, 1/K, refers the leakages to 40 °C when the windows carry the temperature.
+    parameters : mapping of relation to parameter names, default :data:`RELATION_PARAMETERS`
+        What to identify in each relation (a relation left out or given no names is not fitted).
 
     Raises
     ------
@@ -212,10 +215,12 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     for relation, needs, make, signals in plan:
         if not needs <= have:
             continue
-        names = RELATION_PARAMETERS[relation]
+        names = tuple(parameters.get(relation, ()))
+        if not names:
+            continue
         p, fit.rms_before[relation], fit.rms_after[relation] = _fit(names, p, make(signals))
     base = nominal if nominal is not None else PlantParameters()
-    fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in RELATION_PARAMETERS[r]})
+    fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in parameters[r]})
     result = UnitFit(p, fit.factors, fit.rms_before, fit.rms_after, fit.windows)
     rms = {f"rms_{r}": f"{fit.rms_before[r]:.3g}->{fit.rms_after[r]:.3g}" for r in fit.rms_before}
     event(_log, "unit identified", logging.INFO, windows=result.windows, **rms)
