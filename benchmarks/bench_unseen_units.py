@@ -186,14 +186,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=2026, help="population seed (7 tuned the defaults)")
     ap.add_argument("--train-seconds", type=float, default=300.0)
     ap.add_argument("--test-seconds", type=float, default=100.0)
-    ap.add_argument("--states", choices=("7", "13", "both"), default="both")
+    ap.add_argument("--states", choices=("7", "13", "both", "none"), default="both",
+                    help="parity models to evaluate (none: only --entropy)")
     ap.add_argument("--commission", action="store_true", help="also the commissioning section")
     ap.add_argument("--entropy", type=int, default=0, metavar="N",
                     help="also the study's method (NARX and BJ bundles, 7 states) on the first N units")
     ap.add_argument("--json", default=None, help="write the figures here")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
-    sets = {"7": (STUDY_STATES,), "13": (EXTENDED_STATES,), "both": (STUDY_STATES, EXTENDED_STATES)}[args.states]
+    sets = {"7": (STUDY_STATES,), "13": (EXTENDED_STATES,), "both": (STUDY_STATES, EXTENDED_STATES),
+            "none": ()}[args.states]
     tallies: dict[int, list[Tally]] = {len(s): [] for s in sets}
     first: dict[int, ConditionModel] = {}
     units = []
