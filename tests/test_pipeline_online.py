@@ -453,3 +453,12 @@ def test_a_model_switch_to_a_bundle_reading_temperature_gathers_temperature(bund
     assert asked == [list(RAW)]
     assert scorer.bundle.method == "parity" and len(verdicts) == 2
     assert all(v.verdict.state != "invalid" for v in verdicts)
+
+
+def test_commissioning_refuses_an_entropy_bundle_and_says_why(bundle_dir: Path, test_recordings: list) -> None:
+    from hydrowatch.condition.commission import CommissioningError
+    from hydrowatch.training.bundle import ModelBundle
+    from hydrowatch.training.commissioning import commission_bundle
+
+    with pytest.raises(CommissioningError, match="entropy bundle: its base distributions"):
+        commission_bundle(ModelBundle.load(bundle_dir), test_recordings[:1], "m7")
