@@ -111,7 +111,7 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     for rec in simulate_states(STATES, seconds=60, seed=3):
         write_recording(rec, train_dir / f"{rec.state}.parquet")
     assert main(["train", "--data", str(train_dir), "--method", "parity", "--out", str(tmp_path / "fleet"),
-                 "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", "--experiment", "test"]) == 0
+                 "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", "--experiment", "test", "--no-register"]) == 0
     unit, day = units[1]
     for name, seconds in (("short", 100), ("healthy", 300)):
         rec = next(simulate_states(["healthy"], seconds=seconds, nominal=unit, seed=4,
@@ -121,8 +121,10 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert main(["commission", "--model", str(tmp_path / "fleet"), "--data", str(tmp_path / "short.parquet"),
                  "--machine", "m7", "--out", str(tmp_path / "units" / "m7")]) == 2
     assert "at least 300 s" in capsys.readouterr().err and not (tmp_path / "units" / "m7").exists()
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     assert main(["commission", "--model", str(tmp_path / "fleet"), "--data", str(tmp_path / "healthy.parquet"),
-                 "--machine", "m7", "--out", str(tmp_path / "units" / "m7"), "--json"]) == 0
+                 "--machine", "m7", "--out", str(tmp_path / "units" / "m7"), "--json", "--register", "hydrowatch-m7",
+                 "--tracking-uri", uri]) == 0
     import json
 
     info = json.loads(capsys.readouterr().out)
@@ -148,5 +150,8 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     states = {m: [v.verdict.state for v in got if v.machine == f"t/{m}"] for m in ("m7", "m8")}
     assert states["m7"] == [w["state"] for w in scored["windows"]]
     assert states["m7"].count("healthy") > states["m8"].count("healthy")
+    registry = Commissionings("models:/hydrowatch-{machine}@champion", fleet, uri)  # the same, from MLflow
+    assert info["model_uri"] == "models:/hydrowatch-m7@champion"
+    assert registry.for_machine("m7").version == "hydrowatch-m7/v1" and registry.for_machine("m8") is None
     stale = Commissionings(tmp_path / "units", ModelBundle.load(tmp_path / "fleet", version="other"))
     assert stale.for_machine("m7") is None  # commissioned from another fleet version: the fleet model judges

@@ -438,7 +438,7 @@ def test_a_model_switch_to_a_bundle_reading_temperature_gathers_temperature(bund
             return False
 
     model = Switching()
-    units = _Units(None, model.bundle)
+    units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)  # type: ignore[arg-type]
     assert "temperature" not in scorer.columns
     asked: list[list[str]] = []

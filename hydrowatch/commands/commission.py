@@ -17,13 +17,16 @@ HELP = "adapt a trained parity model to one machine from >= 5 min of its healthy
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--model``, ``--data``, ``--machine``, ``--out``, ``--json``, ``--tracking-uri``."""
+    """``--model``, ``--data``, ``--machine``, ``--out``, ``--json``, ``--tracking-uri``, ``--register``."""
     parser.add_argument("--model", required=True, help="fleet model bundle folder or models:/NAME@ALIAS")
     parser.add_argument("--data", required=True, type=Path, help="the machine's healthy recording(s): a file or folder")
     parser.add_argument("--machine", required=True, help="the machine's id (as in its plant messages)")
     parser.add_argument("--out", required=True, type=Path, help="where to write the machine's bundle (a folder)")
     parser.add_argument("--json", action="store_true", help="print the commissioning as one JSON object")
     parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
+    parser.add_argument("--register", default=None, metavar="NAME",
+                        help="also log the commissioning to MLflow and register it as NAME (alias champion), e.g. "
+                             "hydrowatch-m7 for the scorer's --commissioning models:/hydrowatch-{machine}@champion")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,6 +44,18 @@ def run(args: argparse.Namespace) -> int:
     bundle = commission_bundle(fleet, recordings, args.machine)
     bundle.save(args.out)
     info = {"machine": args.machine, "out": str(args.out), "version": bundle.version, **bundle.manifest["commissioned"]}
+    if args.register:
+        from hydrowatch.training.commissioning import REGISTRY_ALIAS
+        from hydrowatch.training.tracking import log_training
+
+        unit = info["unit"]
+        logged = log_training(params={"machine": args.machine, "base_version": info["base_version"],
+                                      "sources": ",".join(info["sources"])},
+                              metrics={"seconds": unit["seconds"], "healthy_share": unit["healthy_share"]},
+                              bundle_dir=args.out, tracking=args.tracking_uri, experiment="hydrowatch-commissioning",
+                              run_name=f"commission {args.machine}", model_name=args.register, alias=REGISTRY_ALIAS,
+                              tags={"machine": args.machine, "kind": "commissioning"})
+        info["model_uri"], info["run_id"] = logged["model_uri"], logged["run_id"]
     if args.json:
         print(json.dumps(info))
     else:

@@ -71,10 +71,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask publishers' history for chunks missing from a machine's stream (a missed "
                              "chunk then invalidates its window)")
-    parser.add_argument("--commissioning", default=None, metavar="FOLDER",
-                        help="parity bundles: per-machine bundles written by `hydrowatch commission --out FOLDER/ID`; "
-                             "a machine without one (or commissioned from another fleet model version) is judged by "
-                             "the fleet model, with a logged warning")
+    parser.add_argument("--commissioning", default=None, metavar="FOLDER|URI",
+                        help="parity bundles: per-machine bundles, a folder written by `hydrowatch commission --out "
+                             "FOLDER/ID` or a registry template such as models:/hydrowatch-{machine}@champion "
+                             "(`commission --register`); a machine without one (or commissioned from another fleet "
+                             "model version) is judged by the fleet model, with a logged warning")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
@@ -109,10 +110,12 @@ class _Model:
 class _Units:
     """The machines' commissionings (``--commissioning``) for the fleet bundle in use, or none."""
 
-    def __init__(self, folder: str | None, fleet: ModelBundle) -> None:
+    def __init__(self, args: argparse.Namespace, fleet: ModelBundle) -> None:
         from hydrowatch.training.commissioning import Commissionings
 
-        self.found = None if folder is None or fleet.method != "parity" else Commissionings(folder, fleet)
+        source = args.commissioning
+        self.found = None if source is None or fleet.method != "parity" else Commissionings(source, fleet,
+                                                                                              args.tracking_uri)
         self.fleet = fleet
 
     def bundle(self, stream: str) -> ModelBundle:
@@ -152,7 +155,7 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Score until ``stop`` (or ``--seconds``); returns 0."""
     model = _Model(args)
-    units = _Units(args.commissioning, model.bundle)
+    units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)
     freeze_heap()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
@@ -193,7 +196,7 @@ def _step(model: _Model, units: _Units, scorer: OnlineScorer, args: argparse.Nam
     """One turn of the loop: switch model if the alias moved, *then* gather chunks of the channels the scorer in
     use reads (a new bundle may read another channel, e.g. temperature) and score them."""
     if model.moved():
-        units = _Units(args.commissioning, model.bundle)
+        units = _Units(args, model.bundle)
         scorer = _scorer(model, units, args)
         freeze_heap()
     chunks = gather(scorer.columns)
