@@ -16,8 +16,9 @@ study) and tested on a **later day** (``later_day``: leakages, load and damping 
   slow noise); right = ``unknown``. ``known read unknown`` is the share of the 7 states' windows
   (every condition above) that read ``unknown``.
 
-``commissioned`` (with ``--commission``): the 7- and 13-state models of the *first* unit of the
-population are commissioned on each other unit's healthy duty cycle (300 s, its training day),
+``commissioned`` (with ``--commission``, or ``--commission-only``): the 7- and 13-state models of the
+*first* unit of the population are commissioned on each other unit's healthy duty cycle (300 s, its
+training day), and again on 300 s of its healthy filtered noise 0–4 V (an identification run),
 then score that unit's later day on working commands (duty cycle and slow noise); the same without
 commissioning is printed beside it.
 
@@ -189,6 +190,7 @@ def main() -> None:
     ap.add_argument("--states", choices=("7", "13", "both", "none"), default="both",
                     help="parity models to evaluate (none: only --entropy)")
     ap.add_argument("--commission", action="store_true", help="also the commissioning section")
+    ap.add_argument("--commission-only", action="store_true", help="only the commissioning section")
     ap.add_argument("--entropy", type=int, default=0, metavar="N",
                     help="also the study's method (NARX and BJ bundles, 7 states) on the first N units")
     ap.add_argument("--json", default=None, help="write the figures here")
@@ -207,8 +209,12 @@ def main() -> None:
             units.append((unit, day))
             seed = 1000 * (i + 1) + args.seed
             for states in sets:
+                if args.commission_only and len(states) in first:
+                    continue
                 model = train(unit, states, args.train_seconds, seed)
                 first.setdefault(len(states), model)
+                if args.commission_only:
+                    continue
                 tally = Tally()
                 evaluate(model, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
                 if len(states) == 7:
@@ -216,8 +222,8 @@ def main() -> None:
                 tallies[len(states)].append(tally)
             print(f"unit {i + 1}/{args.units} done, {time.time() - t0:.0f} s", flush=True)
         figures = {f"{k} states": summarise(v, f"{k} states, each unit trained on its own recordings")
-                   for k, v in tallies.items()}
-        if args.commission:
+                   for k, v in tallies.items() if v}
+        if args.commission or args.commission_only:
             figures.update(commissioning(first, units, sets, args))
         if args.entropy:
             figures.update(study_method(units[: args.entropy], args))
@@ -230,27 +236,35 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
                   sets: tuple[tuple[str, ...], ...], args: argparse.Namespace) -> dict[str, object]:
     """The first unit's models on every other unit, commissioned on its healthy duty cycle or not."""
     out: dict[str, object] = {}
+    runs = {"duty cycle 0.5-3.5 V": lambda seed: duty_cycle(300.0, (0.5, 3.5), seed=seed),
+            "filtered noise 0-4 V": lambda seed: filtered_noise(300.0, (0, 4), seed=seed)}
     for states in sets:
-        base = first[len(states)]
-        plain, commissioned, refused = [], [], 0
-        for j, (unit, day) in enumerate(units[1:], start=1):
-            seed = 50_000 + 1000 * j + args.seed
-            healthy = simulate([unit], duty_cycle(300.0, (0.5, 3.5), seed=seed + 1), seed)[0]
-            try:
-                model = commission(base, healthy).model
-            except CommissioningError as exc:  # the unit keeps the fleet model
-                print(f"unit {j + 1}: commissioning refused: {exc}")
-                model, refused = base, refused + 1
-            for tallies_, m in ((plain, base), (commissioned, model)):
-                tally = Tally()
-                rng = np.random.default_rng(seed)
-                score_working(m, day, states, rng, args.test_seconds, seed, tally)
-                tallies_.append(tally)
-        k = len(states)
-        out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, not commissioned")
-        out[f"{k} states, commissioned"] = summarise(commissioned, f"{k} states, first unit's model, commissioned")
-        out[f"{k} states, commissioning refused"] = refused
-        print(f"commissioning refused on {refused} of {len(units) - 1} healthy units")
+        base, k = first[len(states)], len(states)
+        plain: list[Tally] = []
+        for how, command in runs.items():
+            commissioned, refused, supply = [], 0, 0
+            for j, (unit, day) in enumerate(units[1:], start=1):
+                seed = 50_000 + 1000 * j + args.seed
+                healthy = simulate([unit], command(seed + 1), seed)[0]
+                try:
+                    done = commission(base, healthy)
+                    model, supply = done.model, supply + (done.supply == "identified")
+                except CommissioningError as exc:  # the unit keeps the fleet model
+                    print(f"unit {j + 1}: commissioning refused: {exc}")
+                    model, refused = base, refused + 1
+                pairs = [(commissioned, model)] + ([(plain, base)] if len(plain) < len(units) - 1 else [])
+                for tallies_, m in pairs:
+                    tally = Tally()
+                    score_working(m, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
+                    tallies_.append(tally)
+            if how == next(iter(runs)):
+                out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, "
+                                                                        "not commissioned")
+            out[f"{k} states, commissioned on {how}"] = summarise(
+                commissioned, f"{k} states, first unit's model, commissioned on 300 s of healthy {how}")
+            out[f"{k} states, commissioned on {how}, refused"] = refused
+            print(f"commissioning on {how}: refused on {refused} of {len(units) - 1} healthy units, supply "
+                  f"identified on {supply}")
     return out
 
 

@@ -87,6 +87,10 @@ class UnitFit:
         parameters (load N·m, motor and valve L/min).
     windows : int
         Healthy windows used.
+    covariance : dict of str to (names, ndarray)
+        Per identified relation, its parameters and the posterior covariance of their log-factors
+        ln(p / p0) (Gauss-Newton, (JᵀJ)⁻¹ of the regularised problem at the solution): what the
+        recording leaves undetermined shows as a variance near the prior's τ².
     """
 
     parameters: PlantParameters
@@ -94,6 +98,7 @@ class UnitFit:
     rms_before: dict[str, float] = field(default_factory=dict)
     rms_after: dict[str, float] = field(default_factory=dict)
     windows: int = 0
+    covariance: dict[str, tuple[tuple[str, ...], np.ndarray]] = field(default_factory=dict)
 
     def summary(self) -> dict[str, object]:
         """JSON-able summary: factors and RMS before/after, rounded."""
@@ -121,8 +126,9 @@ def _noise_level(e: np.ndarray) -> float:
 
 
 def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantParameters], np.ndarray]
-         ) -> tuple[PlantParameters, float, float]:
-    """Regularised least squares over log-factors of ``names`` (module docstring): (parameters, RMS before, after)."""
+         ) -> tuple[PlantParameters, float, float, np.ndarray]:
+    """Regularised least squares over log-factors of ``names`` (module docstring): (parameters, RMS before, after,
+    posterior covariance of the log-factors, (JᵀJ)⁻¹ at the solution, the prior included)."""
     base = np.array([getattr(p, n) for n in names])
     tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
 
@@ -142,9 +148,10 @@ def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantPara
     fitted = at(result.x)
     rms0 = float(np.sqrt(np.mean(e0**2)))
     rms1 = float(np.sqrt(np.mean(residual(fitted) ** 2)))
+    covariance = np.linalg.pinv(result.jac.T @ result.jac)
     if not rms1 <= rms0:  # the prior pulled a flat direction: never leave a unit worse explained than nominal
-        return p, rms0, rms0
-    return fitted, rms0, rms1
+        return p, rms0, rms0, np.diag(tau**2)
+    return fitted, rms0, rms1, covariance
 
 
 def _load_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
@@ -218,10 +225,11 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
         names = tuple(parameters.get(relation, ()))
         if not names:
             continue
-        p, fit.rms_before[relation], fit.rms_after[relation] = _fit(names, p, make(signals))
+        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(names, p, make(signals))
+        fit.covariance[relation] = (names, cov)
     base = nominal if nominal is not None else PlantParameters()
     fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in parameters[r]})
-    result = UnitFit(p, fit.factors, fit.rms_before, fit.rms_after, fit.windows)
+    result = UnitFit(p, fit.factors, fit.rms_before, fit.rms_after, fit.windows, fit.covariance)
     rms = {f"rms_{r}": f"{fit.rms_before[r]:.3g}->{fit.rms_after[r]:.3g}" for r in fit.rms_before}
     event(_log, "unit identified", logging.INFO, windows=result.windows, **rms)
     return result
