@@ -216,6 +216,10 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     moved.pooled_excess_ = model.pooled_excess_
     moved.features_ = features.for_unit(unit, w[ok], BAND_WIDENING)
     moved.decision_, moved.open_set_ = model.decision_, model.open_set_
+    # Supply kept from the trained unit: windows at loads the recording never reached can misfit the valve
+    # relation a little; pooled arithmetically that spreads over the pool, so the open set judges each window
+    # alone (docs/unseen-units.md).
+    moved.pool_open_set_ = supply == "identified"
     verdicts = moved.predict(w[ok])
     healthy = float(np.mean(verdicts == "healthy"))
     if healthy < MIN_HEALTHY:

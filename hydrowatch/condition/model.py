@@ -19,7 +19,8 @@ Verdicts judge each window alone, or pool the evidence of a machine's last n win
 an unseen one is rejected, at the price of delay.
 
 ``save``/``load`` use one directory: ``condition_features.json``, ``decision.json`` or
-``classifier.npz``, ``open_set.json``, ``condition_model.json`` (format 3: ``pooled_excess``;
+``classifier.npz``, ``open_set.json``, ``condition_model.json`` (format 3: ``pooled_excess`` and, since
+commissioning, ``pool_open_set``;
 directories of format 2, without it, load with the default) (no pickle).
 """
 
@@ -221,6 +222,9 @@ class ConditionModel:
     ----------
     features_, decision_, open_set_
         The fitted parts.
+    pool_open_set_ : bool
+        Whether pooled verdicts also pool the open-set evidence (:meth:`pools_open_set`); False for a
+        commissioned unit whose supply its recording did not determine.
     """
 
     def __init__(self, *, features: ConditionFeatures | None = None, classifier: HealthClassifier | None = None,
@@ -235,6 +239,7 @@ class ConditionModel:
         if not self.pooled_excess > 0.0:
             raise ParameterError(f"pooled_excess must be > 0. Got {self.pooled_excess!r}; 1.0 is the default.")
         self.pooled_excess_ = float(self.pooled_excess)
+        self.pool_open_set_: bool = True
         template = self.features or ConditionFeatures()
         self.features_ = ConditionFeatures(**{**template.get_params(), "kind": "scores"}).fit(windows_by_state)
         states = list(self.features_.states_)
@@ -287,10 +292,11 @@ class ConditionModel:
         With a sensor missing, the fills leave known states an occasional unexplained window (a
         step the fill's static relation misses); pooled arithmetically it would spread over the
         next windows, so the open-set rule then judges each window alone and pooling only serves
-        the decision.
+        the decision. Likewise for a commissioned unit whose supply the recording did not
+        determine (``pool_open_set_`` False, :mod:`~hydrowatch.condition.commission`).
         """
         self._check_fitted()
-        return set(self.features_.relations_) == {"load", "motor", "valve"}
+        return getattr(self, "pool_open_set_", True) and set(self.features_.relations_) == {"load", "motor", "valve"}
 
     def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
                      reasons: Sequence[str | None] | None = None) -> list[Verdict]:
@@ -348,7 +354,8 @@ class ConditionModel:
         else:
             self.decision_.save(d / FILES["classifier"])
         (d / FILES["open_set"]).write_text(json.dumps(self.open_set_.to_dict(), indent=1))
-        (d / FILES["model"]).write_text(json.dumps({"format": FORMAT, "pooled_excess": self.pooled_excess_}))
+        (d / FILES["model"]).write_text(json.dumps({"format": FORMAT, "pooled_excess": self.pooled_excess_,
+                                                    "pool_open_set": bool(getattr(self, "pool_open_set_", True))}))
 
     @classmethod
     def load(cls, directory: str | Path) -> ConditionModel:
@@ -374,5 +381,6 @@ class ConditionModel:
             raise DataError(f"condition model format must be <= {FORMAT}. Got {meta['format']}: saved by a newer "
                             "hydrowatch; upgrade hydrowatch to load it.", str(d))
         model.pooled_excess = model.pooled_excess_ = float(meta.get("pooled_excess", 1.0))
+        model.pool_open_set_ = bool(meta.get("pool_open_set", True))
         return model
 
