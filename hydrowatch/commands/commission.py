@@ -61,5 +61,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         unit = info["unit"]
         print(f"{args.machine}: commissioned from {fleet.version} on {unit['seconds']:.0f} s "
-              f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows) -> {args.out} ({bundle.version})")
+              f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
+              f"-> {args.out} ({bundle.version})")
+        if unit["supply"] != "identified":
+            print("  the recording does not determine the relief and pump; for alert levels at high load, commission "
+                  "on 5 minutes of filtered noise over the command range (the identification command of "
+                  "`hydrowatch simulate`)")
     return 0
