@@ -86,8 +86,12 @@ class Tally:
         self.right: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
         self.calibration: dict[int, list[tuple[float, bool]]] = defaultdict(list)
         self.unknown_known: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+        self.open_set_cost: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+        self.healthy: dict[int, list[int]] = defaultdict(lambda: [0, 0])
 
-    def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True) -> None:
+    def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True,
+            telling: bool = True) -> None:
+        """Count one machine's verdicts; ``telling``: the sensors can tell its state (not oil without temperature)."""
         for n, vs in by_pool.items():
             cell = self.right[(condition, n)]
             cell[0] += sum(v.state == truth for v in vs)
@@ -98,6 +102,20 @@ class Tally:
                 u[1] += len(vs)
                 self.calibration[n] += [(float(v.probability), v.state == truth) for v in vs
                                         if v.probability is not None and v.state not in ("unknown", "invalid")]
+                if not telling:
+                    continue
+                cost = self.open_set_cost[n]  # right by the decision alone, turned `unknown` by the open set
+                cost[0] += sum(v.state == "unknown" and decided(v) == truth for v in vs)
+                cost[1] += len(vs)
+                if truth == "healthy":
+                    h = self.healthy[n]
+                    h[0] += sum(v.state == "healthy" for v in vs)
+                    h[1] += len(vs)
+
+
+def decided(v: Verdict) -> str | None:
+    """The decision's state without the open set (the most probable trained state), None for invalid windows."""
+    return max(v.probabilities, key=v.probabilities.__getitem__) if v.probabilities else None
 
 
 def ece(pairs: list[tuple[float, bool]], bins: int = 10) -> tuple[float, float]:
@@ -142,7 +160,7 @@ def evaluate(model: ConditionModel, day: PlantParameters, states: tuple[str, ...
     """Score one unit's later day under every condition into ``tally``."""
     for condition, params, u, effects, temperature in unit_conditions(day, states, rng, test_s, seed):
         for state, w in zip(states, simulate(params, u, seed + 100, effects)):
-            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]))
+            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]), telling=temperature)
 
 
 def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: int, tally: Tally) -> None:
@@ -168,16 +186,20 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
             cells.append(f"{np.median(acc):.1f} / {acc.min():.1f}")
             figures[f"{c}|{n}"] = {"median": float(np.median(acc)), "worst": float(acc.min())}
         print(f"| {c} | " + " | ".join(cells) + " |")
-    cells, cal = [], []
+    rows: dict[str, list[str]] = defaultdict(list)
     for n in POOLS:
-        share = np.array([100.0 * t.unknown_known[n][0] / max(t.unknown_known[n][1], 1) for t in tallies])
-        cells.append(f"{np.median(share):.1f} / {share.max():.1f}")
+        for name, counts, worst in (("healthy read healthy (with temperature)", "healthy", np.min),
+                                    ("known read unknown (lower is better)", "unknown_known", np.max),
+                                    ("open set's cost: right by the decision, read unknown (with temperature)",
+                                     "open_set_cost", np.max)):
+            share = np.array([100.0 * getattr(t, counts)[n][0] / max(getattr(t, counts)[n][1], 1) for t in tallies])
+            rows[name].append(f"{np.median(share):.1f} / {worst(share):.1f}")
+            figures[f"{name.split(' (')[0]}|{n}"] = {"median": float(np.median(share)), "worst": float(worst(share))}
         e, w = ece([pair for t in tallies for pair in t.calibration[n]])
-        cal.append(f"{e:.3f} / {100 * w:.0f} %")
-        figures[f"known read unknown|{n}"] = {"median": float(np.median(share)), "worst": float(share.max())}
+        rows["ECE / wrong with p > 0.99 (all units)"].append(f"{e:.3f} / {100 * w:.0f} %")
         figures[f"calibration|{n}"] = {"ece": e, "wrong_p99": w}
-    print("| known read unknown (lower is better) | " + " | ".join(cells) + " |")
-    print("| ECE / wrong with p > 0.99 (all units) | " + " | ".join(cal) + " |")
+    for name, cells in rows.items():
+        print(f"| {name} | " + " | ".join(cells) + " |")
     return figures
 
 

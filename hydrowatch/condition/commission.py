@@ -35,7 +35,7 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition import parity
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.model import ConditionModel
-from hydrowatch.condition.unit import RELATION_PARAMETERS, UnitFit, identify_unit
+from hydrowatch.condition.unit import DEFAULT_PRIOR, PRIOR, RELATION_PARAMETERS, UnitFit, identify_unit
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.faults import level_severity, parse_state
@@ -74,6 +74,11 @@ FAULT_FRACTION = 0.6
 BAND_WIDENING = 0.3
 """Extra width of each fault band on a commissioned unit (:meth:`ConditionFeatures.for_unit`): the levels there are
 extrapolated from healthy data; measured on duty cycles with 1–3× the default sensor noise, +17 to +29 % too high."""
+INFORMED = 0.5
+"""A parameter counts as informed by the recording when its posterior standard deviation is below this share of its
+prior spread (:func:`level_uncertainty`)."""
+LEAKS = ("pump_leak", "motor_leak", "valve_leak")
+"""Faults whose severity is a conductance in units of the reference conductance."""
 MIN_HEALTHY = 0.9
 """Smallest share of the recording's own windows the commissioned model must read ``healthy``."""
 
@@ -143,19 +148,38 @@ def check_excitation(windows: np.ndarray, seconds: float) -> None:
 
 
 def _levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
-    """The trained fault levels' severities on a unit of parameters ``p`` (steady speed drop at 2 V)."""
+    """The trained fault levels on a unit of parameters ``p`` (steady speed drop at 2 V), in physical terms.
+
+    A leakage fault's severity counts in units of the unit's own reference conductance Dp·ωp/Pc
+    (:func:`parity.reference_conductance`), a scale, not physics: the leaks are compared as conductances,
+    m³/(s·Pa), the others as their severities (load: TL factor; valve_coil, relief_spring: Kc, Pc fractions).
+    """
     named = [parse_state(s) for s in features.levels_]
-    return np.array([level_severity(f, lvl, p) for f, lvl in named if f is not None and lvl is not None] or [1.0])
+    scale = parity.reference_conductance(p)
+    return np.array([level_severity(f, lvl, p) * (scale if f in LEAKS else 1.0)
+                     for f, lvl in named if f is not None and lvl is not None] or [1.0])
 
 
 def level_uncertainty(features: ConditionFeatures, fit: UnitFit, step: float = 0.01) -> float:
-    """Largest standard deviation of ln(fault level) that the fit's posterior covariance implies (linearised)."""
+    """Largest standard deviation of ln(fault level) (:func:`_levels`) that the fit's posterior covariance implies
+    (linearised), counting only the parameters the recording informs.
+
+    A parameter the recording leaves to its prior (posterior standard deviation ≥ :data:`INFORMED` × its prior
+    spread τ, e.g. the pump displacement on a duty cycle that never saturates the pump) stays at the trained unit's
+    value whether the supply is identified or kept (:func:`identify_for_commissioning`): its uncertainty is the
+    build spread between units that both choices share, and does not tell them apart.
+    """
     base = np.log(_levels(features, fit.parameters))
     variance = np.zeros_like(base)
     for names, covariance in fit.covariance.values():
+        tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
+        informed = np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau
+        if not informed.any():
+            continue
+        kept = [n for n, ok in zip(names, informed) if ok]
         slopes = np.column_stack([(np.log(_levels(features, fit.parameters.replace(
-            **{n: getattr(fit.parameters, n) * np.exp(step)}))) - base) / step for n in names])
-        variance += np.einsum("ij,jk,ik->i", slopes, covariance, slopes)
+            **{n: getattr(fit.parameters, n) * np.exp(step)}))) - base) / step for n in kept])
+        variance += np.einsum("ij,jk,ik->i", slopes, covariance[np.ix_(informed, informed)], slopes)
     return float(np.sqrt(variance.max()))
 
 

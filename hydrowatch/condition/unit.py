@@ -125,10 +125,16 @@ def _noise_level(e: np.ndarray) -> float:
     return max(1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0), 1e-12)
 
 
-def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantParameters], np.ndarray]
+def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantParameters], np.ndarray],
+         spread: Callable[[PlantParameters], np.ndarray] | None = None
          ) -> tuple[PlantParameters, float, float, np.ndarray]:
     """Regularised least squares over log-factors of ``names`` (module docstring): (parameters, RMS before, after,
-    posterior covariance of the log-factors, (JᵀJ)⁻¹ at the solution, the prior included)."""
+    posterior covariance of the log-factors, (JᵀJ)⁻¹ at the solution, the prior included).
+
+    ``spread(p)``, when given, is each block residual's noise standard deviation at parameters ``p`` (same shape
+    as the residual): the residual is weighted by it (errors in variables, :func:`_valve_spread`); otherwise by
+    the noise level measured on the residual at ``p`` (:func:`_noise_level`).
+    """
     base = np.array([getattr(p, n) for n in names])
     tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
 
@@ -139,8 +145,10 @@ def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantPara
     sigma = _noise_level(e0)
 
     def cost(theta: np.ndarray) -> np.ndarray:
-        e = residual(at(theta)).ravel()
-        return np.concatenate([np.nan_to_num(e / sigma, nan=1e6), theta / tau])
+        q = at(theta)
+        e = residual(q).ravel()
+        scale = sigma if spread is None else spread(q).ravel()
+        return np.concatenate([np.nan_to_num(e / scale, nan=1e6), theta / tau])
 
     bound = np.array([BOUNDS.get(n, BOUND) for n in names])
     result = least_squares(cost, np.zeros(len(names)), bounds=(-bound, bound), x_scale=tau, diff_step=1e-4,
@@ -175,6 +183,68 @@ def _valve_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
         spool = parity.spool_position(s.voltage, p)
         return parity.valve_residual(s.flow, spool, pl, p, None, np.zeros(s.flow.shape[0]), s.leak)
     return residual
+
+
+HOLD_SETTLE = 50
+"""Samples (0.25 s) a command must have been held before a sample counts as held (:func:`held_noise`): the shaft's
+hydraulic resonance (~28 Hz) has rung out by then."""
+MIN_HELD = 2000
+"""Held samples (10 s) needed to measure the sensor noise; fewer, and the valve relation is not weighted for
+errors in variables (:func:`_valve_spread`)."""
+
+
+def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
+    """White-noise standard deviation of signals (m, n) measured where the command ``voltage`` (m, n) is held.
+
+    Where the command has not moved for :data:`HOLD_SETTLE` samples the plant is at rest and the signal's second
+    difference is its noise alone: σ = 1.4826·MAD / √6 (a white sequence's second difference has variance 6σ²).
+    Elsewhere the plant's own fast content (spool, line, resonance) would count as noise: on filtered noise 0–4 V
+    the second differences of P̂L read 6.5× its true noise. None with fewer than :data:`MIN_HELD` held samples.
+    """
+    moved = np.concatenate([np.ones((x.shape[0], 1), dtype=bool), np.diff(voltage, axis=-1) != 0.0], axis=-1)
+    count = np.cumsum(moved, axis=-1)
+    since = count - np.concatenate([np.zeros((x.shape[0], HOLD_SETTLE), dtype=count.dtype),
+                                    count[:, :-HOLD_SETTLE]], axis=-1)
+    held = since[:, HOLD_SETTLE:] == 0  # no move over the last HOLD_SETTLE samples (from sample HOLD_SETTLE on)
+    d = np.diff(x, n=2, axis=-1)[:, HOLD_SETTLE - 2:]
+    d = d[held[:, : d.shape[1]]]
+    if d.size < MIN_HELD:
+        return None
+    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
+
+
+def _valve_spread(s: _Signals) -> Callable[[PlantParameters], np.ndarray] | None:
+    """Noise standard deviation of each valve block residual, L/min: flow noise and load-pressure noise carried
+    through the relation (errors in variables); None when the recording holds too little to measure the noise.
+
+    P̂L comes from the torque transducer (:func:`parity.load_pressure`), so it is as noisy as the torque: 0.6–1.9 bar
+    per sample with 1–3× the default DAQ. The relation passes that noise on as ∂Q̂/∂P̂L·δP̂L, which depends on the
+    parameters: with the relief open (Ps pinned at Pc) the predicted flow follows every wiggle of P̂L, pump-limited
+    hardly at all. Weighted uniformly, the fit prefers parameters that make the flow insensitive to P̂L, the
+    attenuation bias of errors in variables: on a development unit's healthy duty cycle (0.5–3.5 V, torque noise
+    0.43 N·m) Pc came out ×2.2 with a relief that never opens, while the same recording without torque noise gave
+    the load-warning level to 0.3 %. Weighting each block by its own spread, √(σ_Q² + (∂Q̂/∂P̂L)²·σ_PL²) (Deming
+    regression; ∂Q̂/∂P̂L by a 0.1 bar step, σ by :func:`held_noise`), removes the preference. Rich excitation (filtered
+    noise over the whole range) moves P̂L far more than its noise, the bias is small there, and it has no holds to
+    measure the noise on: it is fitted unweighted, as before.
+    """
+    weight = float(np.sum(np.r_[0.5, np.ones(parity.BLOCK - 1), 0.5] ** 2)) / parity.BLOCK**2  # trapezoid block mean
+    flow = held_noise(s.flow, s.voltage)
+    torque = held_noise(s.torque, s.voltage)
+    if flow is None or torque is None:
+        return None
+    flow_noise = flow * parity.M3S_TO_LPM * np.sqrt(weight)
+    step = 1e4  # Pa
+
+    def spread(p: PlantParameters) -> np.ndarray:
+        pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
+        spool = parity.spool_position(s.voltage, p)
+        zero = np.zeros(s.flow.shape[0])
+        slope = (parity.valve_flow_prediction(spool, pl + step, p, None, zero, s.leak)
+                 - parity.valve_flow_prediction(spool, pl, p, None, zero, s.leak)) / step
+        pl_noise = (held_noise(pl, s.voltage) or 0.0) * np.sqrt(weight)
+        return np.sqrt(flow_noise**2 + (parity.block_means(slope) * parity.M3S_TO_LPM * pl_noise) ** 2)
+    return spread
 
 
 def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, sensors: Sequence[str] = SENSORS,
@@ -214,18 +284,21 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     s = _Signals(w[:, :, 0], w[:, :, 1] * LPM_TO_M3S, w[:, :, 2], w[:, :, 3], leak)
     have = set(sensors)
     fit = UnitFit(p, windows=int(w.shape[0]))
-    plan = [("load", {"speed", "torque"}, _load_residual, s),
-            ("motor", {"flow", "speed", "torque"}, _motor_residual, s)]
+    plan: list[tuple[str, set[str], Callable[[_Signals], Callable[[PlantParameters], np.ndarray]], _Signals,
+                     Callable[[_Signals], Callable[[PlantParameters], np.ndarray] | None] | None]] = [
+        ("load", {"speed", "torque"}, _load_residual, s, None),
+        ("motor", {"flow", "speed", "torque"}, _motor_residual, s, None)]
     pick = np.unique(np.linspace(0, w.shape[0] - 1, min(MAX_WINDOWS, w.shape[0])).round().astype(int))
     few = _Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick])
-    plan.append(("valve", {"flow", "speed", "torque"}, _valve_residual, few))
-    for relation, needs, make, signals in plan:
+    plan.append(("valve", {"flow", "speed", "torque"}, _valve_residual, few, _valve_spread))
+    for relation, needs, make, signals, spread in plan:
         if not needs <= have:
             continue
         names = tuple(parameters.get(relation, ()))
         if not names:
             continue
-        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(names, p, make(signals))
+        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(
+            names, p, make(signals), None if spread is None else spread(signals))
         fit.covariance[relation] = (names, cov)
     base = nominal if nominal is not None else PlantParameters()
     fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in parameters[r]})
