@@ -59,8 +59,14 @@ def _passes(model: BoxJenkins, alpha: float) -> tuple[bool, bool]:
 
 
 def akaike(model: BoxJenkins) -> float:
-    """Akaike's criterion N ln(sigma^2) + 2 p of a fitted model (sigma^2 of Eq. 3.14, p parameters)."""
-    return float(model.n_samples_ * np.log(model.sigma2_) + 2 * len(model.parameter_names_))
+    """Akaike's criterion N ln(sigma^2) + 2 p of a fitted model (sigma^2 of Eq. 3.14).
+
+    p counts the model's parameters and the start-up coefficients fitted with them (initial
+    state and output offset, ``n_start_up_``): a larger model also gets more of those, and each
+    absorbs about one sample's error at the start of the record.
+    """
+    p = len(model.parameter_names_) + int(getattr(model, "n_start_up_", 0))
+    return float(model.n_samples_ * np.log(model.sigma2_) + 2 * p)
 
 
 def _straddles(model: BoxJenkins, name: str) -> bool:
