@@ -27,6 +27,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.sysid import BoxJenkins, preliminary_identification, search_orders
+from hydrowatch.sysid.order_search import admissible, akaike
 from hydrowatch.sysid.pem import Orders, errors_without_start_up
 from hydrowatch.sysid.synthetic import STUDY_ORDERS, study_parameters, study_record
 
@@ -64,18 +65,20 @@ def fit_row(seed: int, n: int, **params: Any) -> dict[str, Any]:
         "fits": len(model.starts_),
         "converged": model.converged_,
         "Q_p": model.validation_["Q_p"],
+        "aic": akaike(model),
+        "admissible": admissible(model),
     }
 
 
-def auto_orders(seed: int, n: int) -> tuple[str, float, int]:
-    """Orders found by the search from the preliminary identification, as ``identify --auto``."""
+def auto_orders(seed: int, n: int) -> tuple[str, float, int, float]:
+    """Orders found by the search from the preliminary identification, as ``identify --auto``, and their AIC."""
     u, y = study_record(seed, n)
     start = time.perf_counter()
     preliminary = preliminary_identification(u, y)
     result = search_orders(u, y, {**preliminary.orders, "delay": preliminary.delay})
     o = result.orders
     text = f"{o['nb']},{o['nf']},{o['nc']},{o['nd']} K={o['delay']}"
-    return text, time.perf_counter() - start, len(result.history)
+    return text, time.perf_counter() - start, len(result.history), akaike(result.model)
 
 
 def seed_range(text: str) -> list[int]:
@@ -86,7 +89,7 @@ def seed_range(text: str) -> list[int]:
 def main(seeds: list[int], n: int, search: bool, params: dict[str, Any]) -> None:
     header = "seed  fit[s]  in/17  noise/9  canc  mse@est  mse@true  fits  Q_p"
     print(f"Eq. 3.24, N={n}, BoxJenkins({', '.join(f'{k}={v!r}' for k, v in params.items()) or 'defaults'})")
-    print(header + ("  --auto orders (fits, s)" if search else ""))
+    print(header + ("  --auto orders (fits, s)  AIC(found) - AIC(true); true admissible" if search else ""))
     rows, hits = [], 0
     for seed in seeds:
         row = fit_row(seed, n, **params)
@@ -95,9 +98,9 @@ def main(seeds: list[int], n: int, search: bool, params: dict[str, Any]) -> None
                 f"{row['cancellations']:>4}  {row['at_estimate']:7.4f}  {row['at_truth']:8.4f}  "
                 f"{row['fits']:4d}  {row['Q_p']:.2f}")  # fmt: skip
         if search:
-            found, seconds, fits = auto_orders(seed, n)
+            found, seconds, fits, aic = auto_orders(seed, n)
             hits += found == "4,4,4,5 K=4"
-            line += f"  {found} ({fits}, {seconds:.0f} s)"
+            line += f"  {found} ({fits}, {seconds:.0f} s)  {aic - row['aic']:+6.1f}  {row['admissible']}"
         print(line, flush=True)
     inside = sum(r["inside"] for r in rows)
     worse = sum(r["at_estimate"] > r["at_truth"] for r in rows)
