@@ -21,8 +21,9 @@ Starting from the preliminary identification's orders (GPAC, Sec. 3.2.1) or give
    repeat (``rounds``) until the orders stop changing.
 5. *Smallest G*: lower nb, nf or both while the lower G (same H) still passes Q and S.
 6. *Choice*: among all fitted models that are admissible (H as in step 3, and B, F ending in
-   significant coefficients without a G cancellation), those with the smallest nb + nf, and of
-   these the lowest criterion, after step 3 has been run once more for the G of step 5.
+   significant coefficients without a G cancellation) and within 3.84 (chi-square(1), 95 %) of
+   the lowest admissible criterion, those with the smallest nb + nf, and of these the lowest
+   criterion, after step 3 has been run once more for the G of step 5.
 
 Step 3 exists because several noise models of the same size can pass Q when H has nearly
 cancelling pole-zero pairs (the study's Eq. 3.24): the raise/lower walk stops at the first one
@@ -92,6 +93,9 @@ def schwarz(model: BoxJenkins) -> float:
 
 
 _CRITERIA = {"aic": akaike, "bic": schwarz}
+_PARSIMONY_MARGIN = 3.84
+"""Step 6 prefers a smaller G only among models within this criterion distance of the best
+admissible one: the 95 % point of chi-square(1), a difference that chance alone rarely makes."""
 
 
 def _straddles(model: BoxJenkins, name: str) -> bool:
@@ -219,8 +223,10 @@ def search_orders(
                 current = _select_noise_model(current, fit, alpha, max_noise_order, patience, score)
             accepted = [m for m in cache.values() if admissible(m, alpha)]
             if accepted:
-                smallest = min(int(m.nb) + int(m.nf) for m in accepted)
-                current = min((m for m in accepted if int(m.nb) + int(m.nf) == smallest), key=score)
+                best = min(score(m) for m in accepted)
+                near = [m for m in accepted if score(m) <= best + _PARSIMONY_MARGIN]
+                smallest = min(int(m.nb) + int(m.nf) for m in near)
+                current = min((m for m in near if int(m.nb) + int(m.nf) == smallest), key=score)
     except _Budget:
         event(_log, "order search stopped: fit budget spent", max_fits=max_fits)
     return OrderSearch(current, history, preliminary)
@@ -288,11 +294,14 @@ def _select_noise_model(
                 model = fit({**orders, "nc": nc, "nd": size - nc}, "noise model by criterion")
             except _Budget:
                 return lowest if chosen is None else chosen
-            size_score = min(size_score, score(model))
             lowest = model if score(model) < score(lowest) else lowest
-            if _admissible_noise_model(model, alpha) and (chosen is None or score(model) < score(chosen)):
-                chosen = model
-        stale = 0 if size_score < best_score else stale + 1
+            if _admissible_noise_model(model, alpha):
+                size_score = min(size_score, score(model))
+                if chosen is None or score(model) < score(chosen):
+                    chosen = model
+        # patience counts sizes that bring no better *admissible* H: a lower criterion of a model
+        # that fails a test says nothing about the next size
+        stale = 0 if size_score < best_score or best_score == np.inf else stale + 1
         best_score = min(best_score, size_score)
         if stale >= patience:
             break
