@@ -1,8 +1,9 @@
 """System identification: Box-Jenkins (study chapter 3) and NARX (chapter 4).
 
 Box-Jenkins workflow: :func:`preliminary_identification` (impulse response, disturbance, GPAC;
-Eqs. 3.3-3.7) -> :class:`BoxJenkins` (prediction-error fit, Eqs. 3.8-3.14) -> validation (Q, S,
-pole-zero; Eqs. 3.17, 3.18) -> :func:`search_orders` (the study's order rules). See docs/sysid.md.
+Eqs. 3.3-3.7) -> :class:`BoxJenkins` (prediction-error fit, Eqs. 3.8-3.14, initial state estimated,
+starts and restarts from :mod:`hydrowatch.sysid.starts`) -> validation (Q, S, pole-zero;
+Eqs. 3.17, 3.18) -> :func:`search_orders` (the study's order rules). See docs/sysid.md.
 
 NARX: :class:`NARX` (tapped delay lines, Levenberg-Marquardt with Bayesian regularisation, Eq. 4.21)
 and :func:`search_structure` (the study's delay/neuron search, Eqs. 4.22, 4.23). See docs/narx.md.

@@ -19,8 +19,9 @@ import numpy as np
 from sklearn.base import BaseEstimator
 
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
-from hydrowatch.sysid.pem import Orders, fit_prediction_error, initial_estimate
+from hydrowatch.sysid.pem import Orders
 from hydrowatch.sysid.polynomials import delayed_numerator, filter_signal, impulse_response, monic
+from hydrowatch.sysid.starts import estimate
 from hydrowatch.sysid.validation import (
     confidence_intervals,
     parameter_covariance,
@@ -97,7 +98,16 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
     lags : int, default 35
         K of the Q and S statistics (Eqs. 3.17, 3.18); the study's degrees of freedom imply 35.
     cancellation_tolerance : float, default 0.05
-        Distance in the z-plane under which a zero and a pole count as cancelling.
+        Distance in the z-plane under which a zero and a pole count as cancelling (reported in
+        ``validation_``, and the trigger of the guard's restarts).
+    initial_conditions : {"estimate", "zero"}, default "estimate"
+        "estimate": the state at the first sample and an output offset are fitted by least
+        squares at every step (a record that does not start from rest); "zero": all filters
+        start from rest at the sample means, the first residuals carry the start-up transient.
+    guard : bool, default True
+        Fit from two starts and restart away from near pole-zero cancellations, keeping the
+        lowest criterion (:func:`hydrowatch.sysid.starts.estimate`); False: one fit from the
+        instrumental-variable start (faster, may stop in a local minimum).
 
     Attributes
     ----------
@@ -111,7 +121,18 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
     sigma2_ : float
         Residual variance, output units squared.
     residuals_ : ndarray, shape (N,)
-        One-step prediction errors on the training data (Eq. 3.27), output units.
+        One-step prediction errors on the training data (Eq. 3.27), output units, with the
+        start-up response removed: ``y - predict(u, y) - start_up_response_``.
+    start_up_response_ : ndarray, shape (N,)
+        Response of the estimated initial state in those errors (zeros with
+        ``initial_conditions="zero"``), output units. The estimated output offset is in
+        ``output_mean_``.
+    n_start_up_ : int
+        Start-up coefficients fitted with the parameters (initial state and output offset; 0
+        with ``initial_conditions="zero"``), counted by the order search's criterion.
+    starts_ : list of dict
+        Every prediction-error fit tried: ``start``, ``sigma2`` (output units squared),
+        ``n_iter``, ``cancellations`` and ``kept``.
     validation_ : dict
         Q, Q_dof, Q_p, S, S_dof, S_p, stable, invertible, cancellations, roots.
     nrmse_one_step_ : float
@@ -131,6 +152,8 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
         tol: float = 1e-8,
         lags: int = 35,
         cancellation_tolerance: float = 0.05,
+        initial_conditions: str = "estimate",
+        guard: bool = True,
     ) -> None:
         self.nb = nb
         self.nf = nf
@@ -142,6 +165,8 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
         self.tol = tol
         self.lags = lags
         self.cancellation_tolerance = cancellation_tolerance
+        self.initial_conditions = initial_conditions
+        self.guard = guard
 
     # ---------------------------------------------------------------- fitting
     def _orders(self) -> Orders:
@@ -153,6 +178,14 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
             raise ParameterError(f"max_iter must be a positive integer. Got {self.max_iter!r}.")
         if not self.tol > 0:
             raise ParameterError(f"tol must be positive. Got {self.tol!r}; use e.g. 1e-8.")
+        if self.initial_conditions not in ("estimate", "zero"):
+            raise ParameterError(
+                f"initial_conditions must be 'estimate' or 'zero'. Got {self.initial_conditions!r}; use 'estimate'."
+            )
+        if not self.cancellation_tolerance > 0:
+            raise ParameterError(
+                f"cancellation_tolerance must be positive. Got {self.cancellation_tolerance!r}; use e.g. 0.05."
+            )
         return Orders(int(self.nb), int(self.nf), int(self.nc), int(self.nd), int(self.delay))
 
     @property
@@ -183,7 +216,12 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
         )
         un = (u - self.input_mean_) / self.input_scale_
         yn = (y - self.output_mean_) / self.output_scale_
-        result = fit_prediction_error(un, yn, orders, initial_estimate(un, yn, orders), self.max_iter, self.tol)
+        result, attempts = estimate(
+            un, yn, orders, max_iter=int(self.max_iter), tol=float(self.tol),
+            estimate_start=self.initial_conditions == "estimate", guard=bool(self.guard),
+            tolerance=float(self.cancellation_tolerance),
+        )  # fmt: skip
+        self.output_mean_ += result.offset * self.output_scale_
         covariance, sigma2 = parameter_covariance(result.jacobian, result.errors)
         gain = self.output_scale_ / self.input_scale_
         to_units = np.concatenate([np.full(orders.nb, gain), np.ones(p - orders.nb)])
@@ -193,7 +231,13 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
         self.ci95_ = confidence_intervals(theta, self.covariance_, 0.95)
         self.sigma2_ = sigma2 * self.output_scale_**2
         self.residuals_ = result.errors * self.output_scale_
+        self.start_up_response_ = result.start_up * self.output_scale_
+        self.starts_ = [
+            {**{k: v for k, v in a.items() if k != "cost"}, "sigma2": a["cost"] / u.size * self.output_scale_**2}
+            for a in attempts
+        ]
         self.n_iter_, self.converged_, self.n_samples_ = result.n_iter, result.converged, int(u.size)
+        self.n_start_up_ = result.n_start_up
         self.nrmse_one_step_ = float(np.sqrt(np.mean(self.residuals_**2)) / (np.std(y) or 1.0))
         self.validation_ = self._validate(un, result.errors, orders)
         return self
@@ -275,16 +319,23 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
             "nrmse_one_step": float(self.nrmse_one_step_),
             "n_samples": int(self.n_samples_),
             "converged": bool(self.converged_),
+            "initial_conditions": str(self.initial_conditions),
+            "starts": _jsonable(self.starts_),
         }
 
-    _STATE = ("b_", "f_", "c_", "d_", "covariance_", "ci95_", "sigma2_", "validation_", "nrmse_one_step_")
-    _SCALARS = ("input_mean_", "input_scale_", "output_mean_", "output_scale_", "n_iter_", "converged_", "n_samples_")
+    _STATE = ("b_", "f_", "c_", "d_", "covariance_", "ci95_", "sigma2_", "nrmse_one_step_")
+    _RECORDS = ("validation_", "starts_")
+    _SCALARS = (
+        "input_mean_", "input_scale_", "output_mean_", "output_scale_", "n_iter_", "converged_", "n_samples_",
+        "n_start_up_",
+    )  # fmt: skip
+    _VERSION_1_DEFAULTS: dict[str, Any] = {"starts_": [], "n_start_up_": 0}  # fields that version 1 files lack
 
     def save(self, path: str | Path) -> None:
         """Write parameters and fitted state as JSON (residuals are not kept)."""
         self._check_fitted()
-        state = {name: _jsonable(getattr(self, name)) for name in self._STATE + self._SCALARS}
-        document = {"format": _FORMAT, "version": 1, "params": self.get_params(), "fitted": state}
+        state = {name: _jsonable(getattr(self, name)) for name in self._STATE + self._RECORDS + self._SCALARS}
+        document = {"format": _FORMAT, "version": 2, "params": self.get_params(), "fitted": state}
         Path(path).write_text(json.dumps(document, indent=1))
 
     @classmethod
@@ -296,13 +347,13 @@ class BoxJenkins(BaseEstimator):  # type: ignore[misc]
             raise DataError(f"file must be a readable JSON model. Got {exc}.", source=str(path)) from exc
         if not isinstance(document, dict) or document.get("format") != _FORMAT:
             raise DataError(f"format must be {_FORMAT!r}. Got another file; pass a saved BoxJenkins.", source=str(path))
-        model = cls(**document["params"])
+        fitted_as = {"initial_conditions": "zero", "guard": False} if document.get("version") == 1 else {}
+        model = cls(**{**fitted_as, **document["params"]})
         fitted = document["fitted"]
         for name in cls._STATE:
-            value = fitted[name]
-            setattr(model, name, value if isinstance(value, dict) else np.asarray(value, dtype=float))
-        for name in cls._SCALARS:
-            setattr(model, name, fitted[name])
+            setattr(model, name, np.asarray(fitted[name], dtype=float))
+        for name in cls._RECORDS + cls._SCALARS:
+            setattr(model, name, fitted[name] if name in fitted else cls._VERSION_1_DEFAULTS[name])
         return model
 
 

@@ -30,19 +30,19 @@ from hydrowatch.sysid.polynomials import (
     filter_signal,
     is_stable,
     monic,
-    reflect_into_unit_circle,
 )
 
 __all__ = [
     "STUDY_MODEL_3_24",
     "Orders",
     "PEMResult",
+    "errors_without_start_up",
     "filtered_white_noise",
     "fit_prediction_error",
-    "initial_estimate",
     "jacobian",
     "prediction_errors",
     "simulate_box_jenkins",
+    "start_up_basis",
 ]
 
 STUDY_MODEL_3_24: dict[str, Any] = {
@@ -79,13 +79,26 @@ class Orders:
 
 @dataclass
 class PEMResult:
-    """Outcome of :func:`fit_prediction_error` (normalised units)."""
+    """Outcome of :func:`fit_prediction_error` (normalised units).
+
+    ``errors`` are the one-step prediction errors with the start-up response removed,
+    ``start_up`` that response (zeros when the initial conditions are taken as zero) and
+    ``offset`` the output level mu estimated with it (0.0 likewise), ``n_start_up`` the number of
+    start-up coefficients fitted (R's and mu; 0 likewise); ``cost`` = errors @ errors.
+    """
 
     theta: np.ndarray
     errors: np.ndarray
     jacobian: np.ndarray
     n_iter: int
     converged: bool
+    start_up: np.ndarray
+    offset: float = 0.0
+    n_start_up: int = 0
+
+    @property
+    def cost(self) -> float:
+        return float(self.errors @ self.errors)
 
 
 def filtered_white_noise(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -144,70 +157,160 @@ def jacobian(
     return np.column_stack(columns) if columns else np.zeros((u.size, 0))
 
 
-def _lagged(x: np.ndarray, lags: range) -> np.ndarray:
-    return np.column_stack([_shift(x, k) for k in lags]) if len(lags) else np.zeros((x.size, 0))
-
-
-def _solve(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Least-squares solution of a x = rhs by the (small) normal equations; pseudo-inverse if singular."""
-    return np.asarray(np.linalg.lstsq(a.T @ a, a.T @ rhs, rcond=1e-12)[0])
-
-
-def _dynamics_estimate(u: np.ndarray, y: np.ndarray, orders: Orders) -> tuple[np.ndarray, np.ndarray]:
-    """B and F by least squares (ARX) refined by three instrumental-variable passes.
-
-    The instruments are past noise-free outputs simulated with the previous B/F, which makes the
-    estimate consistent whatever the disturbance's colour.
-    """
-    nb, nf, k = orders.nb, orders.nf, orders.delay
-    u_reg = _lagged(u, range(k + 1, k + nb + 1))
-    if nf == 0:
-        return _solve(u_reg, y), np.zeros(0)
-    phi = np.column_stack([-_lagged(y, range(1, nf + 1)), u_reg])
-    theta = _solve(phi, y)
-    for _ in range(3):
-        b, f = theta[nf:], reflect_into_unit_circle(theta[:nf])
-        x = filter_signal(delayed_numerator(b, k), monic(f), u)
-        zeta = np.column_stack([-_lagged(x, range(1, nf + 1)), u_reg])
-        theta = np.linalg.lstsq(zeta.T @ phi, zeta.T @ y, rcond=1e-12)[0]
-    return theta[nf:], reflect_into_unit_circle(theta[:nf])
-
-
-def _noise_estimate(v: np.ndarray, nc: int, nd: int) -> tuple[np.ndarray, np.ndarray]:
-    """C and D of the disturbance v = C/D e by the Hannan-Rissanen two-stage least squares."""
-    if nc == 0 and nd == 0:
-        return np.zeros(0), np.zeros(0)
-    n = v.size
-    long_order = int(min(max(20, 3 * (nc + nd)), max(nc + nd + 1, n // 20)))
-    a = _solve(_lagged(v, range(1, long_order + 1)), v)
-    e = v - _lagged(v, range(1, long_order + 1)) @ a
-    phi = np.column_stack([-_lagged(v, range(1, nd + 1)), _lagged(e, range(1, nc + 1))])
-    start = long_order + max(nc, nd)
-    theta = _solve(phi[start:], v[start:])
-    d, c = theta[:nd], theta[nd:]
-    return reflect_into_unit_circle(c), reflect_into_unit_circle(d)
-
-
-def initial_estimate(u: np.ndarray, y: np.ndarray, orders: Orders) -> np.ndarray:
-    """Starting point for the Levenberg-Marquardt iterations (normalised data); shape (n_parameters,).
-
-    B, F by instrumental variables; C, D by Hannan-Rissanen on the disturbance y - q^-K B/F u.
-    F, C and D are reflected into the unit circle so the predictor starts stable.
-    """
-    b, f = _dynamics_estimate(u, y, orders)
-    v = y - filter_signal(delayed_numerator(b, orders.delay), monic(f), u)
-    c, d = _noise_estimate(v, orders.nc, orders.nd)
-    return np.concatenate([b, f, c, d])
-
-
 def _admissible(theta: np.ndarray, orders: Orders) -> bool:
     """F stable (G is a stable system) and C minimum-phase (the predictor D/C is stable)."""
     _, f, c, _ = orders.split(theta)
     return is_stable(f) and is_stable(c)
 
 
+def start_up_basis(theta: np.ndarray, orders: Orders, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Signals that the unknown state at t = 0 and an output offset add to the errors.
+
+    A record that does not start from rest adds to the from-rest errors of Eq. 3.27
+    D/(C F) S(q) delta + 1/C S_v(q) delta (S of length max(nf, K + nb), the past inputs through
+    G; S_v of length max(nc, nd), the past disturbance), that is R(q)/(C F) delta with R of
+    length n_r = max(nd + max(nf, K + nb), nf + max(nc, nd)). An output level mu that the
+    sample mean (Eq. 3.20) missed adds mu D/C 1: eps = D/C (y - mu - w). Both are linear in
+    their coefficients, so :func:`fit_prediction_error` removes them by least squares.
+
+    Returns
+    -------
+    transient : ndarray, shape (rows, n_r)
+        Columns q^-k/(C F) delta, k = 0..n_r-1, up to the sample after which they are below
+        1e-12 of their peak (zero from there on; rows <= n).
+    step : ndarray, shape (n,)
+        D/C applied to a unit step.
+    """
+    _, f, c, d = orders.split(theta)
+    n_r = max(orders.nd + max(orders.nf, orders.delay + orders.nb), orders.nf + max(orders.nc, orders.nd))
+    n_r = min(n_r, max(n // 4, 1))
+    pulse = np.zeros(n)
+    pulse[0] = 1.0
+    response = filter_signal([1.0], np.convolve(monic(c), monic(f)), pulse)
+    alive = np.flatnonzero(np.abs(response) > 1e-12 * np.max(np.abs(response)))
+    rows = min(n, int(alive[-1]) + 1 + n_r)
+    transient = np.column_stack([_shift(response[:rows], k) for k in range(n_r)])
+    return transient, filter_signal(monic(d), monic(c), np.ones(n))
+
+
+@dataclass
+class _StartUp:
+    """Orthonormal basis of the start-up signals: ``head`` (rows, n_r), zero after ``rows``; ``dense`` (N,)."""
+
+    head: np.ndarray
+    dense: np.ndarray
+    to_coefficients: tuple[np.ndarray, np.ndarray, float]  # R_h, Q_h^T step_head, |step'|
+
+    @classmethod
+    def of(cls, theta: np.ndarray, orders: Orders, n: int) -> _StartUp:
+        transient, step = start_up_basis(theta, orders, n)
+        rows = transient.shape[0]
+        head, r_head = np.linalg.qr(transient)
+        along = head.T @ step[:rows]
+        dense = step.copy()
+        dense[:rows] -= head @ along
+        norm = float(np.linalg.norm(dense))
+        return cls(head, dense / norm if norm > 1e-12 else np.zeros(n), (r_head, along, norm))
+
+    def components(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates of x (shape (N,) or (N, k)) along ``head`` and ``dense``."""
+        return self.head.T @ x[: self.head.shape[0]], self.dense @ x
+
+    def remove(self, x: np.ndarray) -> np.ndarray:
+        """x minus its least-squares fit by the start-up signals."""
+        on_head, on_dense = self.components(x)
+        out = x - np.multiply.outer(self.dense, on_dense)
+        out[: self.head.shape[0]] -= self.head @ on_head
+        return np.asarray(out)
+
+    def coefficients(self, x: np.ndarray) -> np.ndarray:
+        """R's coefficients, then mu, of the least-squares fit of x; shape (n_r + 1,)."""
+        r_head, along, norm = self.to_coefficients
+        on_head, on_dense = self.components(x)
+        mu = float(on_dense) / norm if norm > 1e-12 else 0.0
+        r = np.linalg.lstsq(r_head, on_head - along * mu, rcond=1e-12)[0]
+        return np.append(r, mu)
+
+
+@dataclass
+class _Evaluation:
+    """Prediction errors at one theta, with what the Jacobian needs."""
+
+    theta: np.ndarray
+    errors: np.ndarray  # start-up removed
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray]  # from-rest eps, w, v
+    start: _StartUp | None
+    coefficients: np.ndarray  # R's coefficients, then mu
+
+    @property
+    def cost(self) -> float:
+        return float(self.errors @ self.errors)
+
+    def start_up(self, orders: Orders) -> np.ndarray:
+        """R/(C F) delta, the response of the initial conditions alone (mu excluded); shape (N,)."""
+        if self.start is None:
+            return np.zeros_like(self.errors)
+        _, f, c, _ = orders.split(self.theta)
+        pulse = np.zeros(self.errors.size)
+        pulse[0] = 1.0
+        return filter_signal(self.coefficients[:-1], np.convolve(monic(c), monic(f)), pulse)
+
+
+def _evaluate(theta: np.ndarray, u: np.ndarray, y: np.ndarray, orders: Orders, estimate_start: bool) -> _Evaluation:
+    eps, w, v = prediction_errors(theta, u, y, orders)
+    if not estimate_start:
+        return _Evaluation(theta, eps, (eps, w, v), None, np.zeros(0))
+    start = _StartUp.of(theta, orders, u.size)
+    return _Evaluation(theta, start.remove(eps), (eps, w, v), start, start.coefficients(eps))
+
+
+def errors_without_start_up(theta: np.ndarray, u: np.ndarray, y: np.ndarray, orders: Orders) -> np.ndarray:
+    """Prediction errors of Eq. 3.27 with the least-squares start-up response removed; shape (N,).
+
+    The criterion :func:`fit_prediction_error` minimises (``estimate_start=True``): compare a
+    fitted theta with another one (e.g. the true parameters) on the same record.
+    """
+    return _evaluate(np.asarray(theta, dtype=float), u, y, orders, True).errors
+
+
+def _jacobian(point: _Evaluation, u: np.ndarray, orders: Orders) -> np.ndarray:
+    """d eps / d theta of the errors with the start-up removed (variable projection).
+
+    With tau = R/(C F) delta + mu D/C 1 the start-up signal at its least-squares coefficients:
+    d tau/d f_k = -q^-k tau_R / F, d tau/d c_k = -q^-k tau / C, d tau/d d_k = q^-k mu / C 1;
+    the Jacobian of eps_rest - tau, projected off the start-up signals, has the exact gradient
+    of the profiled criterion (Kaufman's form).
+    """
+    eps, w, v = point.raw
+    jac = jacobian(point.theta, u, orders, eps, w, v)
+    if point.start is None:
+        return jac
+    _, f, c, d = orders.split(point.theta)
+    n = u.size
+    mu = float(point.coefficients[-1])
+    tau_r = point.start_up(orders)
+    tau_mu = mu * filter_signal(monic(d), monic(c), np.ones(n))
+    tau_r_f = filter_signal([1.0], monic(f), tau_r)
+    tau_c = filter_signal([1.0], monic(c), tau_r + tau_mu)
+    mu_c = mu * filter_signal([1.0], monic(c), np.ones(n))
+    i_f, i_c, i_d = orders.nb, orders.nb + orders.nf, orders.nb + orders.nf + orders.nc
+    for k in range(1, orders.nf + 1):
+        jac[:, i_f + k - 1] += _shift(tau_r_f, k)
+    for k in range(1, orders.nc + 1):
+        jac[:, i_c + k - 1] += _shift(tau_c, k)
+    for k in range(1, orders.nd + 1):
+        jac[:, i_d + k - 1] -= _shift(mu_c, k)
+    return point.start.remove(jac)
+
+
 def fit_prediction_error(
-    u: np.ndarray, y: np.ndarray, orders: Orders, theta0: np.ndarray, max_iter: int = 100, tol: float = 1e-8
+    u: np.ndarray,
+    y: np.ndarray,
+    orders: Orders,
+    theta0: np.ndarray,
+    max_iter: int = 100,
+    tol: float = 1e-8,
+    estimate_start: bool = True,
 ) -> PEMResult:
     """Minimise sum eps(t, theta)^2 (Eq. 3.9) by Levenberg-Marquardt (Eq. 3.12) with exact Jacobian.
 
@@ -225,14 +328,17 @@ def fit_prediction_error(
         Largest number of accepted or rejected steps.
     tol : float
         Stop when an accepted step lowers the cost by less than ``tol`` relative.
+    estimate_start : bool
+        Remove, at every theta, the least-squares start-up response of the unknown initial
+        state and output offset (:func:`start_up_basis`); False takes the record to start from
+        rest at the sample mean (the first samples then weigh on the fit with the transient).
     """
     theta = np.asarray(theta0, dtype=float).copy()
-    eps, w, v = prediction_errors(theta, u, y, orders)
-    cost = float(eps @ eps)
-    jac = jacobian(theta, u, orders, eps, w, v)
+    point = _evaluate(theta, u, y, orders, estimate_start)
+    jac = _jacobian(point, u, orders)
     if orders.n_parameters == 0:
-        return PEMResult(theta, eps, jac, 0, True)
-    hessian, gradient = jac.T @ jac, jac.T @ eps
+        return _result(point, jac, orders, 0, True)
+    hessian, gradient = jac.T @ jac, jac.T @ point.errors
     mu = 1e-4 * float(np.max(np.diag(hessian)))
     converged = False
     n_iter = 0
@@ -242,17 +348,13 @@ def fit_prediction_error(
         except np.linalg.LinAlgError:
             mu *= 10.0
             continue
-        candidate = theta + step
-        if _admissible(candidate, orders):
-            eps_c, w_c, v_c = prediction_errors(candidate, u, y, orders)
-            cost_c = float(eps_c @ eps_c)
-        else:
-            cost_c = np.inf
-        if cost_c < cost:
-            improvement = (cost - cost_c) / max(cost, np.finfo(float).tiny)
-            theta, eps, w, v, cost = candidate, eps_c, w_c, v_c, cost_c
-            jac = jacobian(theta, u, orders, eps, w, v)
-            hessian, gradient = jac.T @ jac, jac.T @ eps
+        candidate = point.theta + step
+        trial = _evaluate(candidate, u, y, orders, estimate_start) if _admissible(candidate, orders) else None
+        if trial is not None and trial.cost < point.cost:
+            improvement = (point.cost - trial.cost) / max(point.cost, np.finfo(float).tiny)
+            point = trial
+            jac = _jacobian(point, u, orders)
+            hessian, gradient = jac.T @ jac, jac.T @ point.errors
             mu = max(mu / 10.0, 1e-12 * float(np.max(np.diag(hessian))))
             if improvement < tol:
                 converged = True
@@ -262,5 +364,11 @@ def fit_prediction_error(
             if mu > 1e12 * max(float(np.max(np.diag(hessian))), 1.0):
                 converged = True  # no descent direction left: a (local) minimum
                 break
-    event(_log, "prediction-error fit", orders=orders, n_iter=n_iter, converged=converged, cost=cost)
-    return PEMResult(theta, eps, jac, n_iter, converged)
+    event(_log, "prediction-error fit", orders=orders, n_iter=n_iter, converged=converged, cost=point.cost)
+    return _result(point, jac, orders, n_iter, converged)
+
+
+def _result(point: _Evaluation, jac: np.ndarray, orders: Orders, n_iter: int, converged: bool) -> PEMResult:
+    offset = float(point.coefficients[-1]) if point.start is not None else 0.0
+    start_up = point.start_up(orders)
+    return PEMResult(point.theta, point.errors, jac, n_iter, converged, start_up, offset, point.coefficients.size)
