@@ -12,6 +12,7 @@ import pytest
 
 from hydrowatch.condition import parity
 from hydrowatch.condition import unit as unit_module
+from hydrowatch.condition.commission import left_to_prior
 from hydrowatch.condition.unit import held_noise, identify_unit
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -60,6 +61,8 @@ def test_the_supply_identified_from_a_noisy_duty_cycle_is_not_biased(development
     fit = identify_unit(healthy, trained)
     # measured: +3.7 % weighted for errors in variables, +34.5 % unweighted (Pc ×1.21, a relief that rarely opens)
     assert level_severity("load", "warning", fit.parameters) / truth == pytest.approx(1.0, abs=0.1)
+    # the duty cycle informs the relief (Pc to ±2 %) but not the pump's spare capacity (Dp stays at its prior)
+    assert "Dp" in left_to_prior(fit) and "Pc" not in left_to_prior(fit) and "Kq" not in left_to_prior(fit)
     monkeypatch.setattr(unit_module, "MIN_HELD", 10**9)  # no noise measurement: the unweighted fit of before
     unweighted = identify_unit(healthy, trained)
     assert level_severity("load", "warning", unweighted.parameters) / truth > 1.2

@@ -67,4 +67,10 @@ def run(args: argparse.Namespace) -> int:
             print("  the recording does not determine the relief and pump; for alert levels at high load, commission "
                   "on 5 minutes of filtered noise over the command range (the identification command of "
                   "`hydrowatch simulate`)")
+        elif unit.get("left_to_prior"):
+            kept = ", ".join(unit["left_to_prior"])
+            print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
+            if "Dp" in unit["left_to_prior"]:
+                print("  the pump's spare capacity (Dp) sets the pump_leak levels and whether a healthy machine under "
+                      "high demand reads as a pump leak: add a few seconds of steps to the top of the command range")
     return 0

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -117,7 +117,8 @@ class Commissioning:
     def summary(self) -> dict[str, Any]:
         """JSON-able summary (the bundle manifest's ``commissioned.unit``)."""
         return {**self.unit.summary(), "seconds": round(self.seconds, 1), "healthy_share": round(self.healthy_share, 4),
-                "supply": self.supply, "split_disagreement": round(self.split, 4)}
+                "supply": self.supply, "split_disagreement": round(self.split, 4),
+                "left_to_prior": left_to_prior(self.unit)}
 
 
 def implied_severities(fleet: PlantParameters, unit: PlantParameters) -> dict[str, float]:
@@ -161,6 +162,18 @@ def _levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
                      for f, lvl in named if f is not None and lvl is not None] or [1.0])
 
 
+def _informed(names: tuple[str, ...], covariance: np.ndarray) -> np.ndarray:
+    """Which of a relation's parameters the recording informs: posterior standard deviation < :data:`INFORMED` × τ."""
+    tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
+    return cast(np.ndarray, np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau)
+
+
+def left_to_prior(fit: UnitFit) -> list[str]:
+    """Identified parameters the recording did not inform (they stay near the trained unit's values)."""
+    return [n for names, covariance in fit.covariance.values()
+            for n, ok in zip(names, _informed(names, covariance)) if not ok]
+
+
 def level_uncertainty(features: ConditionFeatures, fit: UnitFit, step: float = 0.01) -> float:
     """Largest standard deviation of ln(fault level) (:func:`_levels`) that the fit's posterior covariance implies
     (linearised), counting only the parameters the recording informs.
@@ -173,8 +186,7 @@ def level_uncertainty(features: ConditionFeatures, fit: UnitFit, step: float = 0
     base = np.log(_levels(features, fit.parameters))
     variance = np.zeros_like(base)
     for names, covariance in fit.covariance.values():
-        tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
-        informed = np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau
+        informed = _informed(names, covariance)
         if not informed.any():
             continue
         kept = [n for n, ok in zip(names, informed) if ok]
