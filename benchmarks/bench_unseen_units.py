@@ -14,7 +14,9 @@ study) and tested on a **later day** (``later_day``: leakages, load and damping 
   temperature channel and without it;
 - ``open set``: a 7-state model scores the other 6 faults (warning and alert, duty cycle and
   slow noise); right = ``unknown``. ``known read unknown`` is the share of the 7 states' windows
-  (every condition above) that read ``unknown``.
+  (every condition above) that read ``unknown``; ``the open set's cost``, the share the decision
+  alone got right and the open set turned ``unknown`` (the issue's "costing known states ≤ 1
+  point"), and ``healthy read healthy``, both over the conditions with the temperature channel.
 
 ``commissioned`` (with ``--commission``, or ``--commission-only``): the 7- and 13-state models of the
 *first* unit of the population are commissioned on each other unit's healthy duty cycle (300 s, its
