@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 from bench_command_invariance import simulate
 
-from hydrowatch.condition import ConditionModel, trailing_evidence
+from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
 from hydrowatch.condition.model import ParityRule
 from hydrowatch.health.metrics import expected_calibration_error
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -56,7 +56,7 @@ def report(rule: ParityRule, model: ConditionModel, machines: dict[str, np.ndarr
             rows = model.features_.transform_evidence(w)
             x = trailing_evidence(rows, POOL, layout)[0] if pooled else rows[:, :width]
             ok = np.all(np.isfinite(x), axis=1)
-            proba.append(rule.predict_proba(x[ok]))
+            proba.append(rule.predict_proba(x[ok], pooled_windows(rows, POOL)[ok] if pooled else None))
             truth += [classes.index(machine.split("#")[0])] * int(ok.sum())
         p, y = np.concatenate(proba), np.array(truth)
         wrong = p.argmax(axis=1) != y

@@ -46,7 +46,7 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from hydrowatch.condition import ConditionModel, trailing_evidence
+from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
 from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.health.verdict import Verdict
 from hydrowatch.plant import PlantParameters, PlantSimulator
@@ -77,7 +77,7 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     out = {1: model.judge_evidence(ratios, ratios, reasons)}
     layout = model.features_.evidence_layout()
     for n in POOLS[1:]:
-        out[n] = model.judge_pooled(*trailing_evidence(rows, n, layout), ratios, reasons)
+        out[n] = model.judge_pooled(*trailing_evidence(rows, n, layout), ratios, reasons, pooled_windows(rows, n))
     return out
 
 

@@ -31,17 +31,21 @@ def test_the_temperature_floor_and_the_optional_prior():
     fitted = ParityRule(min_temperature=1e-3).fit(separated, classes, classes).temperature_
     assert fitted < 0.1  # nothing to calibrate on: any small T fits
     rule = ParityRule().fit(separated, classes, classes)
-    assert rule.temperature_ == 0.1  # the model error's floor
+    assert rule.temperature_ == 0.5  # the model error's floor (on units that are not the defaults)
     np.testing.assert_allclose(rule.predict_proba(np.ones((1, 6))), [[1 / 3] * 3])  # a tie: the uniform prior
     prior = ParityRule(healthy_prior=0.5).fit(separated, classes, classes)
     np.testing.assert_allclose(np.exp(prior.log_prior()), [0.25, 0.25, 0.5])
     np.testing.assert_allclose(prior.predict_proba(np.ones((1, 6))), [[0.25, 0.25, 0.5]])
-    # one window, state fault_a's band ratio 1.2 on a relation: 0.18 in log, 1.8 nats at T = 0.1 (at 0.02, 9.1)
+    # one window, state fault_a's band ratio 1.2 on a relation: 0.18 in log, 0.36 nats at T = 0.5 (at 0.02, 9.1)
     x = np.ones((1, 6))
     x[0, 0] = 1.2
     p = rule.predict_proba(x)[0]
     assert p[0] == pytest.approx(1 / (1 + 2 * 1.2 ** (1 / rule.temperature_)))
-    assert 0.05 < p[0] < 0.1
+    assert 0.2 < p[0] < 0.3
+    # the same row pooling 6 windows (a mean log ratio): their evidence adds, 6 × 0.36 nats
+    pooled = rule.predict_proba(x, np.array([6]))[0]
+    assert pooled[0] == pytest.approx(1 / (1 + 2 * 1.2 ** (6 / rule.temperature_)))
+    assert pooled[0] < 0.06 < p[0] and pooled.argmax() == p.argmax()
     with pytest.raises(ParameterError, match="healthy_prior"):
         ParityRule(healthy_prior=1.0)
     with pytest.raises(ParameterError, match="min_temperature"):
@@ -52,7 +56,7 @@ def test_a_rule_saved_before_the_floor_loads_as_it_was():
     old = ParityRule.from_dict({"params": {"level_weight": 1.0}, "classes": ["healthy", "x"], "temperature": 0.02})
     assert old.healthy_prior is None and old.temperature_ == 0.02
     again = ParityRule.from_dict(ParityRule(healthy_prior=0.3).fit(np.ones((1, 4)), ["x"], ["healthy", "x"]).to_dict())
-    assert again.healthy_prior == 0.3 and again.temperature_ >= 0.1
+    assert again.healthy_prior == 0.3 and again.temperature_ >= 0.5
 
 
 def test_healthy_wins_unloaded_windows_whatever_the_order_of_states(healthy_last):

@@ -8,10 +8,10 @@ The relations themselves are in :mod:`hydrowatch.condition.parity`; docs/command
 has the measurements.
 """
 
-from hydrowatch.condition.evidence import EvidenceLayout, EvidenceSmoother, trailing_evidence
+from hydrowatch.condition.evidence import EvidenceLayout, EvidenceSmoother, pooled_windows, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures, windows_from_recording
 from hydrowatch.condition.model import ConditionModel, ParityRule
 from hydrowatch.condition.stream import ConditionStream
 
 __all__ = ["ConditionFeatures", "ConditionModel", "ConditionStream", "EvidenceLayout", "EvidenceSmoother", "ParityRule",
-           "trailing_evidence", "windows_from_recording"]
+           "pooled_windows", "trailing_evidence", "windows_from_recording"]

@@ -159,6 +159,13 @@ def trailing_evidence(features: np.ndarray, n_windows: int,
     return geometric, arithmetic
 
 
+def pooled_windows(features: np.ndarray, n_windows: int) -> np.ndarray:
+    """How many valid windows each row of :func:`trailing_evidence` pools, shape (n,) (0 for an invalid row)."""
+    n = _check_n(n_windows)
+    valid = np.all(np.isfinite(np.asarray(features, dtype=np.float64)), axis=1)
+    return np.where(valid, np.minimum(np.cumsum(valid), n), 0)
+
+
 class EvidenceSmoother:
     """The pooled parity scores of one machine's last ``n_windows`` valid windows (river style).
 

@@ -33,7 +33,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from hydrowatch.condition.evidence import trailing_evidence
+from hydrowatch.condition.evidence import pooled_windows, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.classifier import HealthClassifier, fit_temperature, labelled_rows
@@ -60,7 +60,12 @@ class ParityRule:
       0.1 reads as 150:1 odds; in holds the true state's relations carry 5–15 % of model error in
       MSE (log F ≈ 0.05–0.15) and look-alikes differ by as little, so wrong verdicts came with
       p > 0.99. T stays at or above this floor: a ratio difference inside the model error is
-      not strong evidence.
+      not strong evidence. On units that are not the defaults the model error is larger: on the
+      development population (seed 7, 6 units, every condition of benchmarks/bench_unseen_units.py)
+      the 13-state per-window ECE / wrong verdicts with p > 0.99 were 0.149 / 41 % at 0.1, 0.096 /
+      3 % at 0.5 and 0.091 / 0 % at 0.8; with pooled rows weighted by their windows
+      (:meth:`predict_proba`) the pooled ones 0.079 / 13 % at 0.1 (unweighted) and 0.074 / 7 % at
+      0.5, so 0.5. The 7-state ECE (≈ 0.10, healthy ties and oil without temperature) does not move.
     - ``healthy_prior`` (off by default): in a window that does not load a part (pump
       saturation, a low-demand stretch), the faults that only show under load explain it exactly
       as well as ``healthy``: equal scores, so with a uniform prior a healthy window gets
@@ -74,7 +79,7 @@ class ParityRule:
     ----------
     level_weight : float, default 1.0
         w, the weight of the level-box ratios (0: band boxes only).
-    min_temperature : float, default 0.1
+    min_temperature : float, default 0.5
         Floor of the fitted softmax temperature T (units of summed log MSE ratios).
     healthy_prior : float or None, default None
         Prior probability of ``healthy`` (the faults share the rest evenly); None, or no
@@ -87,10 +92,10 @@ class ParityRule:
         Softmax temperature of the probabilities: fitted on the training windows, at least ``min_temperature``.
     """
 
-    def __init__(self, *, level_weight: float = 1.0, min_temperature: float = 0.1,
+    def __init__(self, *, level_weight: float = 1.0, min_temperature: float = 0.5,
                  healthy_prior: float | None = None) -> None:
         if not min_temperature > 0.0:
-            raise ParameterError(f"min_temperature must be > 0. Got {min_temperature!r}; 0.1 is the default.")
+            raise ParameterError(f"min_temperature must be > 0. Got {min_temperature!r}; 0.5 is the default.")
         if healthy_prior is not None and not 0.0 < healthy_prior < 1.0:
             raise ParameterError(f"healthy_prior must be in (0, 1) or None. Got {healthy_prior!r}; "
                                  "None (uniform) is the default.")
@@ -132,11 +137,20 @@ class ParityRule:
         self.temperature_ = max(fit_temperature(self._logits(X), target), float(self.min_temperature))
         return self
 
-    def predict_proba(self, X: np.ndarray) -> np.ndarray:
-        """Probabilities, shape (n, n_states); NaN rows stay NaN."""
+    def predict_proba(self, X: np.ndarray, windows: np.ndarray | None = None) -> np.ndarray:
+        """Probabilities, shape (n, n_states); NaN rows stay NaN.
+
+        ``windows`` (n,), for rows that pool several windows' evidence (:mod:`hydrowatch.condition.evidence`):
+        how many each pools. A pooled row holds the *mean* log ratio over its c windows (the level prior once);
+        the evidence of c windows is their sum, so its logits are c times the row's (the decision, an argmax,
+        does not change).
+        """
         if not hasattr(self, "temperature_"):
             raise NotFittedError("ParityRule must be fitted before use. Call fit(X, y, classes) first.")
-        z = self._logits(X) / self.temperature_ + self.log_prior()
+        logits = self._logits(X)
+        if windows is not None:
+            logits = logits * np.asarray(windows, dtype=np.float64).reshape(-1, 1)
+        z = logits / self.temperature_ + self.log_prior()
         z = z - np.max(np.nan_to_num(z, nan=0.0), axis=1, keepdims=True)
         e = np.exp(z)
         return e / e.sum(axis=1, keepdims=True)
@@ -170,8 +184,9 @@ class _Columns:
     state leaves a summed excess min_k Σ_r (F[r, k] − 1) above it (pooled evidence).
     """
 
-    def __init__(self, part: Any, lo: int, hi: int, limit: float | None = None) -> None:
-        self.part, self.lo, self.hi, self.limit = part, lo, hi, limit
+    def __init__(self, part: Any, lo: int, hi: int, limit: float | None = None,
+                 windows: np.ndarray | None = None) -> None:
+        self.part, self.lo, self.hi, self.limit, self.windows = part, lo, hi, limit, windows
 
     @property
     def classes_(self) -> np.ndarray:
@@ -186,7 +201,9 @@ class _Columns:
         return cast(np.ndarray, (f - 1.0).reshape(f.shape[0], -1, len(self.part.states_)).sum(axis=1).min(axis=1))
 
     def predict_proba(self, features: np.ndarray) -> np.ndarray:
-        """The decision's probabilities, shape (n, n_states)."""
+        """The decision's probabilities, shape (n, n_states) (pooled rows weighted by their windows, ParityRule)."""
+        if self.windows is not None and isinstance(self.part, ParityRule):
+            return self.part.predict_proba(self._cut(features), self.windows)
         return cast(np.ndarray, self.part.predict_proba(self._cut(features)))
 
     def score(self, features: np.ndarray) -> np.ndarray:
@@ -284,7 +301,8 @@ class ConditionModel:
         if smoothing == 1:
             return self.judge_evidence(ratios, ratios, reasons), band
         layout = self.features_.evidence_layout()
-        return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons), band
+        return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
+                                 pooled_windows(rows, smoothing)), band
 
     def pools_open_set(self) -> bool:
         """Whether pooled windows also pool the open-set evidence: only when the sensors test every relation.
@@ -299,21 +317,25 @@ class ConditionModel:
         return getattr(self, "pool_open_set_", True) and set(self.features_.relations_) == {"load", "motor", "valve"}
 
     def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
-                     reasons: Sequence[str | None] | None = None) -> list[Verdict]:
+                     reasons: Sequence[str | None] | None = None, windows: np.ndarray | None = None) -> list[Verdict]:
         """Verdicts from pooled scores (:func:`~hydrowatch.condition.evidence.trailing_evidence`) and each
-        window's own ratios ``current``, all shape (n, n_features); see :meth:`pools_open_set`."""
+        window's own ratios ``current``, all shape (n, n_features); ``windows`` (n,): how many windows each row
+        pools (:func:`~hydrowatch.condition.evidence.pooled_windows`; the probabilities weigh the evidence by it,
+        :meth:`ParityRule.predict_proba`). See :meth:`pools_open_set`."""
         if self.pools_open_set():
-            return self.judge_evidence(decision, open_set, reasons, pooled=True)
-        return self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons)
+            return self.judge_evidence(decision, open_set, reasons, pooled=True, windows=windows)
+        return self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons,
+                                   windows=windows)
 
     def judge_evidence(self, decision: np.ndarray, open_set: np.ndarray, reasons: Sequence[str | None] | None = None,
-                       pooled: bool = False) -> list[Verdict]:
+                       pooled: bool = False, windows: np.ndarray | None = None) -> list[Verdict]:
         """Verdicts from (pooled) parity scores, each shape (n, n_features) of ``transform_with_levels``.
 
         ``decision`` feeds the state decision, ``open_set`` (its band half) the open-set rule; for
         one window both are its own scores, for pooled windows the geometric and arithmetic means
         (:mod:`hydrowatch.condition.evidence`), with which ``pooled`` adds the ``pooled_excess``
-        limit to the open-set rule. NaN rows or a reason make a verdict ``invalid``.
+        limit to the open-set rule, and ``windows`` (n,) says how many windows each decision row pools.
+        NaN rows or a reason make a verdict ``invalid``.
         """
         self._check_fitted()
         d = np.atleast_2d(np.asarray(decision, dtype=np.float64))
@@ -321,7 +343,7 @@ class ConditionModel:
         if d.shape != o.shape:
             raise DataError(f"decision and open_set scores must have the same shape. Got {d.shape} and {o.shape}.")
         width = d.shape[1]
-        return judge(np.concatenate([d, o], axis=1), cast(Any, _Columns(self.decision_, 0, width)),
+        return judge(np.concatenate([d, o], axis=1), cast(Any, _Columns(self.decision_, 0, width, windows=windows)),
                      cast(Any, _Columns(self.open_set_, width, width + width // 2,
                                         self.pooled_excess_ if pooled else None)), reasons)
 

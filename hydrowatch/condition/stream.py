@@ -53,9 +53,10 @@ class ConditionStream:
         """Add one window's ``transform_evidence`` row (NaN: invalid, skipped). Returns nothing."""
         self._smoother.update(features)
 
-    def evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """What :meth:`get` judges, each shape (n_ratios,): the decision's and the open set's pooled scores and
-        the last valid window's own ratios (all three that row when ``n_windows`` is 1); None before any.
+    def evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int] | None:
+        """What :meth:`get` judges: the decision's and the open set's pooled scores and the last valid window's
+        own ratios, each shape (n_ratios,) (all three that row when ``n_windows`` is 1), and how many windows
+        are pooled; None before any.
 
         A scorer of many machines stacks these rows and judges them in one call (:func:`judge_streams`).
         """
@@ -65,8 +66,8 @@ class ConditionStream:
             return None
         current = latest[: pooled[0].size]
         if self.n_windows == 1:
-            return current, current, current
-        return pooled[0], pooled[1], current
+            return current, current, current, 1
+        return pooled[0], pooled[1], current, len(self._smoother)
 
     def get(self) -> Verdict | None:
         """The verdict of the pooled windows, or None before the first valid window."""
@@ -75,7 +76,7 @@ class ConditionStream:
 
 
 def judge_streams(model: ConditionModel, n_windows: int,
-                  evidence: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  evidence: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int]],
                   reasons: Sequence[str | None] | None = None) -> list[Verdict]:
     """Verdicts of many streams' :meth:`ConditionStream.evidence` rows in one call (same as each stream's ``get``).
 
@@ -83,12 +84,12 @@ def judge_streams(model: ConditionModel, n_windows: int,
     ----------
     n_windows : int
         The streams' ``n_windows`` (1: each row judged alone).
-    evidence : sequence of (decision, open_set, current), each shape (n_ratios,)
-        NaN rows are invalid windows.
+    evidence : sequence of (decision, open_set, current, windows pooled)
+        Rows of shape (n_ratios,); NaN rows are invalid windows.
     reasons : sequence of str or None, optional
         Why a window is invalid (its verdict then says so).
     """
     decision, open_set, current = (np.stack([e[i] for e in evidence]) for i in range(3))
     if n_windows == 1:
         return model.judge_evidence(current, current, reasons)
-    return model.judge_pooled(decision, open_set, current, reasons)
+    return model.judge_pooled(decision, open_set, current, reasons, np.array([e[3] for e in evidence]))

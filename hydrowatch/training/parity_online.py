@@ -287,17 +287,18 @@ class ParityStreams:
             raw = np.stack([c.samples for c in part])
             rows = self._evidence(raw, [self._names[c.slot] for c in part])
             reasons = features.window_reasons(raw)
-            evidence = []
+            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
             for c, row, why in zip(part, rows, reasons):
+                alone = (row[:width], row[:width], row[:width], 1)
                 if self.smoothing == 1:
-                    evidence.append((row[:width],) * 3)
+                    evidence.append(alone)
                     continue
                 pool = self._pools[c.slot]
                 if pool is None:
                     pool = self._pools[c.slot] = ConditionStream(self.model, n_windows=self.smoothing)
                 pool.update_features(row)
                 got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
-                evidence.append(got if got is not None else (row[:width],) * 3)
+                evidence.append(got if got is not None else alone)
             verdicts = judge_streams(self.model, self.smoothing, evidence, reasons)
             band = rows[:, : width // 2]
             for c, v, s in zip(part, verdicts, band):
