@@ -22,7 +22,7 @@ import numpy as np
 from bench_command_invariance import simulate
 
 from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
-from hydrowatch.condition.model import ParityRule
+from hydrowatch.condition.rule import ParityRule
 from hydrowatch.health.metrics import expected_calibration_error
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters

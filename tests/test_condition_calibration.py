@@ -9,7 +9,7 @@ import pytest
 from test_condition_accuracy import STATES, run
 
 from hydrowatch.condition import ConditionModel
-from hydrowatch.condition.model import ParityRule
+from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import state_parameters

@@ -10,7 +10,8 @@ has the measurements.
 
 from hydrowatch.condition.evidence import EvidenceLayout, EvidenceSmoother, pooled_windows, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures, windows_from_recording
-from hydrowatch.condition.model import ConditionModel, ParityRule
+from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.rule import ParityRule
 from hydrowatch.condition.stream import ConditionStream
 
 __all__ = ["ConditionFeatures", "ConditionModel", "ConditionStream", "EvidenceLayout", "EvidenceSmoother", "ParityRule",

@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -50,6 +51,10 @@ from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
 
 _log = get_logger(__name__)
+
+Relation = tuple[Callable[[PlantParameters], np.ndarray], Callable[[PlantParameters], np.ndarray] | None]
+"""A relation's block residual at given parameters, and its blocks' noise standard deviation (None: the residual
+is weighted by its measured noise level, :func:`_fit`)."""
 
 RELATION_PARAMETERS: dict[str, tuple[str, ...]] = {
     "load": ("JL", "BL", "TL", "omega_s"),
@@ -132,7 +137,7 @@ def _fit(names: Sequence[str], p: PlantParameters, residual: Callable[[PlantPara
     posterior covariance of the log-factors, (JᵀJ)⁻¹ at the solution, the prior included).
 
     ``spread(p)``, when given, is each block residual's noise standard deviation at parameters ``p`` (same shape
-    as the residual): the residual is weighted by it (errors in variables, :func:`_valve_spread`); otherwise by
+    as the residual): the residual is weighted by it (errors in variables, :func:`_valve_relation`); otherwise by
     the noise level measured on the residual at ``p`` (:func:`_noise_level`).
     """
     base = np.array([getattr(p, n) for n in names])
@@ -177,20 +182,32 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     return residual
 
 
-def _valve_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
-    def residual(p: PlantParameters) -> np.ndarray:
-        pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
-        spool = parity.spool_position(s.voltage, p)
-        return parity.valve_residual(s.flow, spool, pl, p, None, np.zeros(s.flow.shape[0]), s.leak)
-    return residual
-
-
 HOLD_SETTLE = 50
 """Samples (0.25 s) a command must have been held before a sample counts as held (:func:`held_noise`): the shaft's
 hydraulic resonance (~28 Hz) has rung out by then."""
 MIN_HELD = 2000
 """Held samples (10 s) needed to measure the sensor noise; fewer, and the valve relation is not weighted for
-errors in variables (:func:`_valve_spread`)."""
+errors in variables (:func:`_valve_relation`)."""
+
+
+def _held(voltage: np.ndarray) -> np.ndarray:
+    """Where a signal's second difference (m, n − 2) lies in a held stretch: the command has not moved for
+    :data:`HOLD_SETTLE` samples."""
+    moved = np.concatenate([np.ones((voltage.shape[0], 1), dtype=bool), np.diff(voltage, axis=-1) != 0.0], axis=-1)
+    count = np.cumsum(moved, axis=-1)
+    since = count - np.concatenate([np.zeros((voltage.shape[0], HOLD_SETTLE), dtype=count.dtype),
+                                    count[:, :-HOLD_SETTLE]], axis=-1)
+    held = np.zeros((voltage.shape[0], voltage.shape[1] - 2), dtype=bool)
+    held[:, HOLD_SETTLE - 2:] = since[:, HOLD_SETTLE:] == 0
+    return held
+
+
+def _noise(x: np.ndarray, held: np.ndarray) -> float | None:
+    """1.4826·MAD / √6 of the second differences of ``x`` where ``held`` (:func:`_held`); None if too few."""
+    d = np.diff(x, n=2, axis=-1)[held]
+    if d.size < MIN_HELD:
+        return None
+    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
 
 
 def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
@@ -201,21 +218,13 @@ def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
     Elsewhere the plant's own fast content (spool, line, resonance) would count as noise: on filtered noise 0–4 V
     the second differences of P̂L read 6.5× its true noise. None with fewer than :data:`MIN_HELD` held samples.
     """
-    moved = np.concatenate([np.ones((x.shape[0], 1), dtype=bool), np.diff(voltage, axis=-1) != 0.0], axis=-1)
-    count = np.cumsum(moved, axis=-1)
-    since = count - np.concatenate([np.zeros((x.shape[0], HOLD_SETTLE), dtype=count.dtype),
-                                    count[:, :-HOLD_SETTLE]], axis=-1)
-    held = since[:, HOLD_SETTLE:] == 0  # no move over the last HOLD_SETTLE samples (from sample HOLD_SETTLE on)
-    d = np.diff(x, n=2, axis=-1)[:, HOLD_SETTLE - 2:]
-    d = d[held[:, : d.shape[1]]]
-    if d.size < MIN_HELD:
-        return None
-    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
+    return _noise(x, _held(voltage))
 
 
-def _valve_spread(s: _Signals) -> Callable[[PlantParameters], np.ndarray] | None:
-    """Noise standard deviation of each valve block residual, L/min: flow noise and load-pressure noise carried
-    through the relation (errors in variables); None when the recording holds too little to measure the noise.
+def _valve_relation(s: _Signals) -> Relation:
+    """The valve relation's block residual, L/min, and each block's noise standard deviation (flow noise and
+    load-pressure noise carried through the relation: errors in variables), None when the recording holds too
+    little to measure the noise. The two share the last parameters' prediction (:func:`_fit` asks both for each).
 
     P̂L comes from the torque transducer (:func:`parity.load_pressure`), so it is as noisy as the torque: 0.6–1.9 bar
     per sample with 1–3× the default DAQ. The relation passes that noise on as ∂Q̂/∂P̂L·δP̂L, which depends on the
@@ -229,22 +238,31 @@ def _valve_spread(s: _Signals) -> Callable[[PlantParameters], np.ndarray] | None
     measure the noise on: it is fitted unweighted, as before.
     """
     weight = float(np.sum(np.r_[0.5, np.ones(parity.BLOCK - 1), 0.5] ** 2)) / parity.BLOCK**2  # trapezoid block mean
-    flow = held_noise(s.flow, s.voltage)
-    torque = held_noise(s.torque, s.voltage)
-    if flow is None or torque is None:
-        return None
-    flow_noise = flow * parity.M3S_TO_LPM * np.sqrt(weight)
+    held = _held(s.voltage)
+    flow = _noise(s.flow, held)
+    flow_noise = 0.0 if flow is None else flow * parity.M3S_TO_LPM * np.sqrt(weight)
+    zero = np.zeros(s.flow.shape[0])
     step = 1e4  # Pa
+    last: dict[str, Any] = {}
+
+    def predicted(p: PlantParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P̂L, x̂, predicted flow) at ``p``, kept for the next call with the same parameters."""
+        if last.get("p") is not p:
+            pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
+            spool = parity.spool_position(s.voltage, p)
+            last.update(p=p, value=(pl, spool, parity.valve_flow_prediction(spool, pl, p, None, zero, s.leak)))
+        return cast(tuple[np.ndarray, np.ndarray, np.ndarray], last["value"])
+
+    def residual(p: PlantParameters) -> np.ndarray:
+        return parity.block_means((s.flow - predicted(p)[2]) * parity.M3S_TO_LPM)
 
     def spread(p: PlantParameters) -> np.ndarray:
-        pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
-        spool = parity.spool_position(s.voltage, p)
-        zero = np.zeros(s.flow.shape[0])
-        slope = (parity.valve_flow_prediction(spool, pl + step, p, None, zero, s.leak)
-                 - parity.valve_flow_prediction(spool, pl, p, None, zero, s.leak)) / step
-        pl_noise = (held_noise(pl, s.voltage) or 0.0) * np.sqrt(weight)
+        pl, spool, q = predicted(p)
+        slope = (parity.valve_flow_prediction(spool, pl + step, p, None, zero, s.leak) - q) / step
+        pl_noise = (_noise(pl, held) or 0.0) * np.sqrt(weight)
         return np.sqrt(flow_noise**2 + (parity.block_means(slope) * parity.M3S_TO_LPM * pl_noise) ** 2)
-    return spread
+
+    return residual, (None if flow is None else spread)
 
 
 def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, sensors: Sequence[str] = SENSORS,
@@ -284,21 +302,19 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     s = _Signals(w[:, :, 0], w[:, :, 1] * LPM_TO_M3S, w[:, :, 2], w[:, :, 3], leak)
     have = set(sensors)
     fit = UnitFit(p, windows=int(w.shape[0]))
-    plan: list[tuple[str, set[str], Callable[[_Signals], Callable[[PlantParameters], np.ndarray]], _Signals,
-                     Callable[[_Signals], Callable[[PlantParameters], np.ndarray] | None] | None]] = [
-        ("load", {"speed", "torque"}, _load_residual, s, None),
-        ("motor", {"flow", "speed", "torque"}, _motor_residual, s, None)]
+    plan: list[tuple[str, set[str], Callable[[_Signals], Relation], _Signals]] = [
+        ("load", {"speed", "torque"}, lambda x: (_load_residual(x), None), s),
+        ("motor", {"flow", "speed", "torque"}, lambda x: (_motor_residual(x), None), s)]
     pick = np.unique(np.linspace(0, w.shape[0] - 1, min(MAX_WINDOWS, w.shape[0])).round().astype(int))
     few = _Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick])
-    plan.append(("valve", {"flow", "speed", "torque"}, _valve_residual, few, _valve_spread))
-    for relation, needs, make, signals, spread in plan:
+    plan.append(("valve", {"flow", "speed", "torque"}, _valve_relation, few))
+    for relation, needs, make, signals in plan:
         if not needs <= have:
             continue
         names = tuple(parameters.get(relation, ()))
         if not names:
             continue
-        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(
-            names, p, make(signals), None if spread is None else spread(signals))
+        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(names, p, *make(signals))
         fit.covariance[relation] = (names, cov)
     base = nominal if nominal is not None else PlantParameters()
     fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in parameters[r]})

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
-from hydrowatch.condition.model import ParityRule
+from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
 from hydrowatch.health.verdict import UNKNOWN
