@@ -30,10 +30,10 @@ def test_the_temperature_floor_and_the_optional_prior():
     separated[[0, 1, 2], [0, 1, 2]] = separated[[0, 1, 2], [3, 4, 5]] = 1.0
     fitted = ParityRule(min_temperature=1e-3).fit(separated, classes, classes).temperature_
     assert fitted < 0.1  # nothing to calibrate on: any small T fits
-    rule = ParityRule().fit(separated, classes, classes)
+    rule = ParityRule(healthy_margin=0.0).fit(separated, classes, classes)
     assert rule.temperature_ == 0.5  # the model error's floor (on units that are not the defaults)
     np.testing.assert_allclose(rule.predict_proba(np.ones((1, 6))), [[1 / 3] * 3])  # a tie: the uniform prior
-    prior = ParityRule(healthy_prior=0.5).fit(separated, classes, classes)
+    prior = ParityRule(healthy_prior=0.5, healthy_margin=0.0).fit(separated, classes, classes)
     np.testing.assert_allclose(np.exp(prior.log_prior()), [0.25, 0.25, 0.5])
     np.testing.assert_allclose(prior.predict_proba(np.ones((1, 6))), [[0.25, 0.25, 0.5]])
     # one window, state fault_a's band ratio 1.2 on a relation: 0.18 in log, 0.36 nats at T = 0.5 (at 0.02, 9.1)
@@ -48,6 +48,27 @@ def test_the_temperature_floor_and_the_optional_prior():
     assert pooled[0] < 0.06 < p[0] and pooled.argmax() == p.argmax()
     with pytest.raises(ParameterError, match="healthy_prior"):
         ParityRule(healthy_prior=1.0)
+    with pytest.raises(ParameterError, match="healthy_margin"):
+        ParityRule(healthy_margin=-0.1)
+
+
+def test_a_fault_must_beat_healthy_by_the_margin():
+    classes = ["fault_a", "fault_b", "healthy"]
+    separated = np.full((3, 6), 5.0)
+    separated[[0, 1, 2], [0, 1, 2]] = separated[[0, 1, 2], [3, 4, 5]] = 1.0
+    rule = ParityRule().fit(separated, classes, classes)
+    assert rule.healthy_margin == 0.1
+    tie = rule.predict_proba(np.ones((1, 6)))[0]  # the margin is worth exp(0.1 / T) to healthy
+    np.testing.assert_allclose(tie, np.array([1.0, 1.0, np.exp(0.2)]) / (2 + np.exp(0.2)))
+    x = np.ones((1, 6))
+    x[0, [1, 2]] = np.exp(0.05)  # fault_a ahead of the others by 0.05 on one relation: less than the margin
+    assert rule.predict(x)[0] == "healthy"
+    x[0, [1, 2]] = np.exp(0.15)  # by 0.15: more
+    assert rule.predict(x)[0] == "fault_a"
+    # pooled rows hold mean log ratios: the margin is weighed against their sum over the windows
+    x[0, [1, 2]] = np.exp(0.05)
+    assert rule.predict_proba(x, np.array([3]))[0].argmax() == 0
+    assert rule.predict_proba(x, np.array([1]))[0].argmax() == 2
     with pytest.raises(ParameterError, match="min_temperature"):
         ParityRule(min_temperature=0.0)
 
