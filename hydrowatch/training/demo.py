@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.bus import BusSettings, Publisher, Subscriber, alive, free_port, key, key_expr, open_session
+from hydrowatch.channels import STUDY_RIG
 from hydrowatch.io import write_recording
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.log import event, get_logger
@@ -121,7 +122,7 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
                 out = fleet.step(command.next(n))
                 labels = fleet.states
                 for i, machine in enumerate(fleet.machine_ids):
-                    channels = {c: out[c][i] for c in ("voltage", "flow", "speed", "torque", "temperature")}
+                    channels = {c: out[c][i] for c in STUDY_RIG}
                     channels["state"] = np.full(n, labels[i], dtype=object)
                     publisher.put(key(FLEET, machine, "sensors"), sensor_chunk_from_arrays(out["t"][i], channels))
                     truth[machine].append((float(out["t"][i][0]), labels[i]))

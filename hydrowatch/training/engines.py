@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
+from hydrowatch.condition.estimates import TEMPERATURE
 from hydrowatch.errors import DataError
 from hydrowatch.health.streaming import MachineWindow, WindowResult
 from hydrowatch.health.verdict import Verdict, judge
@@ -78,11 +80,11 @@ class ParityEngine:
         if bundle.condition is None:
             raise DataError("a parity bundle must hold a condition model. Got none; retrain with `hydrowatch train`.")
         self.model = bundle.condition
-        self.columns = [INPUT, "flow", "speed", "torque"]
+        self.columns = list(WINDOW_CHANNELS)
         self.defaults = {}
         if bundle.manifest.get("temperature"):
-            self.columns.append("temperature")
-            self.defaults["temperature"] = REFERENCE_TEMPERATURE_C
+            self.columns.append(TEMPERATURE)
+            self.defaults[TEMPERATURE] = REFERENCE_TEMPERATURE_C
         self.window, self.hop = bundle.window, bundle.hop
         self._shape = (len(bundle.kl_rows), len(bundle.states))
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
+from hydrowatch.condition.estimates import WIDTH
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
@@ -57,7 +58,7 @@ def split_windows(runs: list[Recording], window: int, hop: int, temperature: boo
         for part, into in ((run.slice(0, cut), fit), (run.slice(cut, len(run)), test)):
             if len(part) >= window:
                 into.append(windows_from_recording(part, window, hop, temperature=temperature))
-    channels = 5 if temperature else 4
+    channels = WIDTH + 1 if temperature else WIDTH
     empty = np.empty((0, window, channels))
     return (np.concatenate(fit) if fit else empty), (np.concatenate(test) if test else empty)
 
