@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from hydrowatch.health.verdict import Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ
+from hydrowatch.verdict import Verdict
 
 DT = 1.0 / SAMPLE_RATE_HZ
 TOLERANCE = 0.5 * DT

@@ -33,10 +33,10 @@ from hydrowatch.plant.faults import STUDY_STATES
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate_states
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from hydrowatch.report.fleet_table import FleetTable, verdict_rows
+from hydrowatch.results import TrainingResult
 from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.pipeline import train_and_track
 from hydrowatch.training.tracking import set_alias
-from hydrowatch.training.trainer import TrainingResult
 
 _log = get_logger(__name__)
 FLEET = "demo"

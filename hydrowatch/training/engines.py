@@ -22,10 +22,11 @@ from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
 from hydrowatch.condition.estimates import TEMPERATURE
 from hydrowatch.errors import DataError
 from hydrowatch.health.streaming import MachineWindow, WindowResult
-from hydrowatch.health.verdict import Verdict, judge
+from hydrowatch.health.verdict import judge
 from hydrowatch.recording import INPUT
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.reference import StreamState
+from hydrowatch.verdict import Verdict
 
 REFERENCE_TEMPERATURE_C = 40.0
 """Oil temperature assumed when a parity bundle uses it and a chunk has none, °C (the relations' reference)."""

@@ -34,7 +34,6 @@ import numpy as np
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.streaming import MachineWindow
-from hydrowatch.health.verdict import INVALID, Verdict
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.chunks import (
     DT,
@@ -51,6 +50,7 @@ from hydrowatch.training.chunks import (
 from hydrowatch.training.engines import EntropyEngine, ParityEngine, engine_for
 from hydrowatch.training.parity_online import ParityStreams
 from hydrowatch.training.reference import StreamState
+from hydrowatch.verdict import INVALID, Verdict
 
 __all__ = ["DT", "TOLERANCE", "Chunk", "ChunkBatch", "OnlineScorer", "WindowVerdict", "chunks_from_batches"]
 

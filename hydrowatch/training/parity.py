@@ -27,13 +27,13 @@ from hydrowatch.condition.estimates import WIDTH
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
-from hydrowatch.health.verdict import UNKNOWN
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import Recording
+from hydrowatch.results import TrainingResult
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.data import ordered_states
 from hydrowatch.training.options import TrainingSettings
-from hydrowatch.training.trainer import TrainingResult
+from hydrowatch.verdict import UNKNOWN
 
 _log = get_logger(__name__)
 TEST_FRACTION = 0.15

@@ -35,9 +35,9 @@ import numpy as np
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
-from hydrowatch.health.verdict import INVALID, Verdict
 from hydrowatch.training.chunks import DT, TOLERANCE, Break, Chunk, ChunkBatch, WindowVerdict, plan_chunk
 from hydrowatch.training.engines import ParityEngine
+from hydrowatch.verdict import INVALID, Verdict
 
 
 @dataclass
