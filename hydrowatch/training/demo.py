@@ -29,6 +29,7 @@ from hydrowatch.channels import STUDY_RIG
 from hydrowatch.io import write_recording
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.log import event, get_logger
+from hydrowatch.plant.excitation import FilteredNoiseCommand
 from hydrowatch.plant.faults import STUDY_STATES
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate_states
 from hydrowatch.recording import SAMPLE_RATE_HZ
@@ -101,8 +102,6 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
         _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, *bus], logs / "scorer.log"),
     ]
     fleet = Fleet(list(MACHINES), fleet=FLEET, seed=s.seed + 1)
-    from services.plant.command import FilteredNoiseCommand  # the plant service's endless filtered noise
-
     command = FilteredNoiseCommand(fleet.n_machines, seed=s.seed + 2)
     table = FleetTable()
     timelines: dict[str, list[tuple[float, float, str]]] = {m: [] for m in fleet.machine_ids}

@@ -28,10 +28,9 @@ from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant import PlantSimulator
-from hydrowatch.plant.excitation import parse_volts
+from hydrowatch.plant.excitation import FilteredNoiseCommand, parse_volts
 from hydrowatch.plant.faults import parse_state, random_state_parameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
-from services.plant.command import FilteredNoiseCommand
 from services.plant.encoder import FleetEncoder
 from services.plant.stepper import SimulationThread
 
