@@ -27,13 +27,14 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from hydrowatch.channels import PLANT
 from hydrowatch.io import codec, decode_batch, encode_batch, read_recording, sensor_chunk_from_arrays, write_recording
 from hydrowatch.recording import Recording
 from hydrowatch.schemas import SENSOR_CHUNK
 from services.plant.encoder import FleetEncoder
 
 REFERENCE_SAMPLES_PER_S = 200_000.0
-CHANNELS = ("voltage", "flow", "speed", "torque", "supply_pressure", "load_pressure", "temperature")
+CHANNELS = PLANT.names
 
 
 def best_of(func: Callable[[], object], number: int, repeat: int) -> float:

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from hydrowatch.bus.service import freeze_heap
+from hydrowatch.channels import STUDY_RIG
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.io.codec import decode_batch, encode_batch, sensor_chunk_from_arrays
 from hydrowatch.plant.fleet import simulate_states
@@ -86,7 +87,7 @@ def _bundle(method: str, reference: str) -> ModelBundle:
 def _payloads(machines: int, seconds: float) -> list[list[tuple[str, bytes]]]:
     """Pre-encoded chunks: step → (machine, bytes) for every machine."""
     source = list(simulate_states(STATES, seconds=seconds, seed=3))
-    channels = ("voltage", "flow", "speed", "torque", "temperature")
+    channels = STUDY_RIG
     steps = len(source[0]) // CHUNK
     out = []
     for k in range(steps):

@@ -2,7 +2,8 @@
 
 This is the in-memory form every part of hydrowatch exchanges (the simulator makes it, the file
 formats in :mod:`hydrowatch.io` read and write it, identification and scoring consume it).
-Channel names and units are the contract's (../shared/docs/contract.md).
+Channel names and units are the contract's (../shared/docs/contract.md), declared once in
+:mod:`hydrowatch.channels`; the names below are views of :data:`~hydrowatch.channels.PLANT`.
 """
 
 from __future__ import annotations
@@ -13,27 +14,21 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import DataError
 
 SAMPLE_RATE_HZ = 200.0
 """Sample rate of every recording, Hz."""
 
-INPUT = "voltage"
-SENSORS: tuple[str, ...] = ("flow", "speed", "torque")
+INPUT = PLANT.command
+"""The command channel every reference model is driven by."""
+SENSORS: tuple[str, ...] = PLANT.sensors
 """The three sparse sensors the health model uses, in contract order."""
 
-UNITS: dict[str, str] = {
-    "t": "s",
-    "voltage": "V",
-    "flow": "L/min",
-    "speed": "rad/s",
-    "torque": "N·m",
-    "supply_pressure": "bar",
-    "load_pressure": "bar",
-    "temperature": "°C",
-}
-REQUIRED_CHANNELS: tuple[str, ...] = ("voltage", "flow", "speed", "torque")
-OPTIONAL_CHANNELS: tuple[str, ...] = ("supply_pressure", "load_pressure", "temperature")
+UNITS: dict[str, str] = PLANT.units
+"""Unit of ``t`` and of every channel (:data:`hydrowatch.channels.PLANT`)."""
+REQUIRED_CHANNELS: tuple[str, ...] = PLANT.required
+OPTIONAL_CHANNELS: tuple[str, ...] = PLANT.optional
 
 
 @dataclass

@@ -10,7 +10,8 @@ from hydrowatch.health.metrics import accuracy, confusion_matrix, expected_calib
 from hydrowatch.health.model import HealthModel
 from hydrowatch.health.openset import OpenSetRule
 from hydrowatch.health.synthetic import STUDY_STATES, synthetic_errors
-from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict, VerdictSmoother, judge
+from hydrowatch.health.verdict import judge
+from hydrowatch.verdict import INVALID, UNKNOWN, Verdict, VerdictSmoother
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,7 @@ from scipy.stats import norm
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import (
+    FilteredNoiseCommand,
     chirp,
     duty_cycle,
     filtered_noise,
@@ -41,6 +42,19 @@ def test_filtered_noise_is_seeded():
     assert filtered_noise(5.0, seed=np.random.default_rng(7)).shape == (1000,)
     with pytest.raises(ParameterError, match="pole"):
         filtered_noise(5.0, pole=1.0)
+
+
+def test_filtered_noise_command_streams_the_same_low_pass_without_seams():
+    one, two = FilteredNoiseCommand(1, seed=4), FilteredNoiseCommand(1, seed=4)
+    np.testing.assert_array_equal(np.hstack([one.next(300), one.next(500)]), two.next(800))  # chunking: no seam
+    fleet = FilteredNoiseCommand(3, (1.0, 3.0), seed=5)
+    u = np.hstack([fleet.next(1000) for _ in range(40)])
+    assert u.shape == (3, 40_000) and u.min() >= 1.0 and u.max() <= 3.0
+    x = u[0] - u[0].mean()
+    assert np.dot(x[1:], x[:-1]) / np.dot(x, x) == pytest.approx(0.9, abs=0.02)  # the study's pole
+    assert not np.array_equal(u[0], u[1])  # every machine its own command
+    with pytest.raises(ParameterError):
+        FilteredNoiseCommand(2, (3.0, 1.0))
 
 
 def test_steps_ramps_sines():

@@ -20,12 +20,14 @@ from hydrowatch.condition import parity
 from hydrowatch.errors import DataError
 from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
 from hydrowatch.plant.parameters import PlantParameters
-from hydrowatch.recording import SENSORS
+from hydrowatch.recording import INPUT, SENSORS
 
 RELATIONS: tuple[str, ...] = ("load", "motor", "valve")
 """Component relations, in feature order."""
-CHANNELS: tuple[str, ...] = ("voltage", *SENSORS)
+CHANNELS: tuple[str, ...] = (INPUT, *SENSORS)
 """Channel order of a window's last axis (4 channels)."""
+WIDTH = len(CHANNELS)
+"""Channels of a window without the oil temperature (4); with it, the temperature is column WIDTH."""
 TEMPERATURE = "temperature"
 """Optional 5th channel of a window: oil temperature, °C (40 °C assumed when absent)."""
 LPM_TO_M3S = 1.0 / parity.M3S_TO_LPM
@@ -56,11 +58,11 @@ class WindowSignals:
 def check_windows(windows: np.ndarray, window: int) -> np.ndarray:
     """Validate raw windows, shape (m, window, 4) in :data:`CHANNELS` order, or 5 with the oil temperature [°C]."""
     w = np.asarray(windows, dtype=np.float64)
-    if w.ndim == 2 and w.shape[0] == window and w.shape[1] in (4, 5):
+    if w.ndim == 2 and w.shape[0] == window and w.shape[1] in (WIDTH, WIDTH + 1):
         w = w[None]
-    if w.ndim != 3 or w.shape[1] != window or w.shape[2] not in (4, 5):
+    if w.ndim != 3 or w.shape[1] != window or w.shape[2] not in (WIDTH, WIDTH + 1):
         raise DataError(
-            f"windows must have shape (n_windows, {window}, 4 or 5) with channels {list(CHANNELS)} "
+            f"windows must have shape (n_windows, {window}, {WIDTH} or {WIDTH + 1}) with channels {list(CHANNELS)} "
             f"[+ {TEMPERATURE}]. Got {w.shape}. Cut recordings with windows_from_recording."
         )
     return w
@@ -94,12 +96,12 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
     """
     q = p if fill is None else fill
     have = set(sensors)
-    u = windows[:, :, 0]
-    flow = windows[:, :, 1] * LPM_TO_M3S
-    speed = windows[:, :, 2]
-    torque = windows[:, :, 3]
+    u = windows[:, :, CHANNELS.index(INPUT)]
+    flow = windows[:, :, CHANNELS.index("flow")] * LPM_TO_M3S
+    speed = windows[:, :, CHANNELS.index("speed")]
+    torque = windows[:, :, CHANNELS.index("torque")]
     relations = set(RELATIONS)
-    leak = parity.leakage_factor(windows[:, :, 4] if windows.shape[2] > 4 else None, u.shape[0],
+    leak = parity.leakage_factor(windows[:, :, WIDTH] if windows.shape[2] > WIDTH else None, u.shape[0],
                                  viscosity_coefficient)
     if "speed" not in have:
         if "flow" in have:  # the motor relation solved for ω, P̂L (Eq. 7) refined by fixed-point iteration
@@ -259,7 +261,7 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
 
 def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | None]:
     """Why each valid-shaped window (m, n, 4 or 5) cannot be judged, or None (``ConditionFeatures.window_reasons``)."""
-    used = [0] + [1 + SENSORS.index(s) for s in sensors] + ([4] if windows.shape[2] > 4 else [])
+    used = [0] + [1 + SENSORS.index(s) for s in sensors] + ([WIDTH] if windows.shape[2] > WIDTH else [])
     names = (*CHANNELS, TEMPERATURE)
     bad = (~np.isfinite(windows[:, :, used])).sum(axis=1)  # (m, used)
     stuck = np.ptp(np.nan_to_num(windows[:, :, used]), axis=1) == 0.0
@@ -270,7 +272,7 @@ def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | N
             if bad[i, j]:
                 why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
                 break
-            if 0 < c < 4 and stuck[i, j]:
+            if 0 < c < WIDTH and stuck[i, j]:
                 why = f"{names[c]}: constant over the window (stuck sensor?)"
                 break
         reasons.append(why)

@@ -39,7 +39,8 @@ from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.classifier import HealthClassifier, labelled_rows
 from hydrowatch.health.openset import OpenSetRule
-from hydrowatch.health.verdict import Verdict, judge
+from hydrowatch.health.verdict import judge
+from hydrowatch.verdict import Verdict
 
 FILES = {"features": "condition_features.json", "rule": "decision.json", "classifier": "classifier.npz",
          "open_set": "open_set.json", "model": "condition_model.json"}

@@ -9,7 +9,7 @@ import numpy as np
 from hydrowatch.condition.evidence import EvidenceSmoother
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import NotFittedError
-from hydrowatch.health.verdict import Verdict
+from hydrowatch.verdict import Verdict
 
 POOLED_WINDOWS = 12
 """Default windows pooled per verdict (60 s at 5 s windows): what 13 states with severities spread in

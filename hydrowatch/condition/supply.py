@@ -28,10 +28,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.plant.parameters import PlantParameters
 
-M3S_TO_LPM = 60000.0
-"""m³/s → L/min."""
 HYPOTHESIS_CODES: dict[str | None, int] = {None: -1, "pump_leak": 0, "relief_spring": 1, "valve_coil": 2,
                                            "valve_leak": 3}
 """Kernel code of each valve-side hypothesis (None: the nominal relation)."""

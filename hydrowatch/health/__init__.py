@@ -3,7 +3,7 @@
 Study chapters 5 and 6: per sensor the reference model's prediction errors (Eq. 5.1) of each
 window are compared with each health state's base distribution by relative entropy (Eq. 5.2,
 5.3); a small network fuses the sensors x states relative entropies into a health state. See
-docs/health.md.
+docs/health.md. The verdict type every method returns is :class:`hydrowatch.verdict.Verdict`.
 """
 
 from hydrowatch.health.classifier import HealthClassifier, stratified_split
@@ -15,13 +15,13 @@ from hydrowatch.health.model import HealthModel
 from hydrowatch.health.openset import OpenSetRule
 from hydrowatch.health.plan import DataPlan, StateSplit, split_state
 from hydrowatch.health.streaming import EntropyWindow, MachineWindow, WindowResult
-from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict, VerdictSmoother, judge
+from hydrowatch.health.verdict import judge
 from hydrowatch.health.windows import sliding_windows, window_starts
 
 __all__ = [
-    "INVALID", "UNKNOWN", "DataPlan", "EntropyWindow", "GaussianBase", "HealthClassifier", "HealthModel",
-    "MachineWindow", "Mixture", "MixtureBase", "OpenSetRule", "RelativeEntropyFeatures", "StateSplit", "Verdict",
-    "VerdictSmoother", "WindowResult", "accuracy", "confusion_matrix", "expected_calibration_error", "fit_gaussian",
+    "DataPlan", "EntropyWindow", "GaussianBase", "HealthClassifier", "HealthModel",
+    "MachineWindow", "Mixture", "MixtureBase", "OpenSetRule", "RelativeEntropyFeatures", "StateSplit",
+    "WindowResult", "accuracy", "confusion_matrix", "expected_calibration_error", "fit_gaussian",
     "fit_mixture", "gaussian_relative_entropy", "judge", "log_features", "mixture_relative_entropy",
     "monte_carlo_relative_entropy", "per_class_recall", "sliding_windows", "split_state", "stratified_split",
     "window_starts",

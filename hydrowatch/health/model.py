@@ -21,8 +21,9 @@ from hydrowatch.health.classifier import HealthClassifier, labelled_rows
 from hydrowatch.health.features import RelativeEntropyFeatures
 from hydrowatch.health.metrics import accuracy, confusion_matrix
 from hydrowatch.health.openset import OpenSetRule
-from hydrowatch.health.verdict import UNKNOWN, Verdict, judge
+from hydrowatch.health.verdict import judge
 from hydrowatch.recording import SENSORS
+from hydrowatch.verdict import UNKNOWN, Verdict
 
 FILES = {"features": "base_distributions.json", "classifier": "classifier.npz", "open_set": "open_set.json"}
 

@@ -10,6 +10,7 @@ commands (:mod:`~hydrowatch.plant.excitation`) and fleets with degradation paths
 
 from hydrowatch.plant.effects import EFFECT_IDS, EFFECTS, Effects, EffectSpec, parse_effects, resolve_effects
 from hydrowatch.plant.excitation import (
+    FilteredNoiseCommand,
     chirp,
     duty_cycle,
     filtered_noise,
@@ -62,7 +63,8 @@ __all__ = [
     "resolve_effects",
     "simulate",
     "zero_flow_supply_pressure",
-    "chirp", "duty_cycle", "filtered_noise", "parse_volts", "ramp", "read_command", "sine", "steps",
+    "FilteredNoiseCommand", "chirp", "duty_cycle", "filtered_noise", "parse_volts", "ramp", "read_command", "sine",
+    "steps",
     "EXTENDED_STATES", "FAULTS", "LEVEL_BANDS", "LEVELS", "STUDY_STATES", "fault_parameters",
     "level_for_speed_drop", "level_severity", "parse_state", "random_state_parameters",
     "severity_for_speed_drop", "speed_drop", "state_name", "state_parameters",

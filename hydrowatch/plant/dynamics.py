@@ -25,14 +25,13 @@ import math
 import numpy as np
 from numba import njit
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.plant.effects import EFFECT_OFFSET, REFERENCE_TEMPERATURE_C
 from hydrowatch.plant.parameters import PARAMETER_INDEX
 
 N_ODE = 9
 X, V, PS, PL, WM, WL, TH, TEMP, YF = range(N_ODE)
 
-M3S_TO_LPM = 60000.0
-"""m³/s → L/min."""
 P_ATM = 101325.0
 """Atmospheric pressure, Pa (entrained_air works with absolute pressure)."""
 CONTACT_DEPTH = 1e-3

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 
 EFFECT_IDS: tuple[str, ...] = (
@@ -26,8 +27,8 @@ EFFECT_IDS: tuple[str, ...] = (
 Effects = Mapping[str, Mapping[str, float]]
 """Effects as ``{effect id: {parameter name: value}}``, e.g. ``{"stribeck_friction": {"Ts": 0.4}}``."""
 
-SENSOR_NAMES: tuple[str, ...] = ("flow", "speed", "torque")
-"""Values of sensor_lowpass's ``sensor`` parameter: 0 flow, 1 speed, 2 torque."""
+SENSOR_NAMES: tuple[str, ...] = PLANT.sensors
+"""Values of sensor_lowpass's ``sensor`` parameter: 0 flow, 1 speed, 2 torque (the kernel's output columns)."""
 
 REFERENCE_TEMPERATURE_C = 40.0
 """Oil temperature at which the nominal parameters hold, °C (reported when thermal_drift is off)."""

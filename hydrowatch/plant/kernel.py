@@ -30,6 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
+from hydrowatch.channels import PA_PER_BAR, PLANT
 from hydrowatch.plant.dynamics import (
     C_INV_N,
     C_PC,
@@ -61,8 +62,12 @@ WRITE = N_ODE + 2
 RING = N_ODE + 3
 """First state column of the delay line."""
 
-CHANNELS_OUT = 6
-"""Kernel output columns: flow, speed, torque, supply_pressure, load_pressure, temperature."""
+CHANNELS_OUT = len(PLANT.measured)
+"""Kernel output columns: the plant's measured channels (flow, speed, torque, supply_pressure,
+load_pressure, temperature), in :attr:`hydrowatch.channels.ChannelSet.measured` order."""
+N_SENSORS = len(PLANT.sensors)
+"""Output columns 0 … N_SENSORS − 1: the noisy health sensors, in the order the dynamics return them."""
+_SUPPLY, _LOAD, _TEMPERATURE = (PLANT.column(c) for c in ("supply_pressure", "load_pressure", "temperature"))
 
 _HYSTERESIS = EFFECT_OFFSET["valve_hysteresis"]
 _DELAY = EFFECT_OFFSET["transport_delay"]
@@ -201,7 +206,7 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
         Full state rows (module docstring); updated in place.
     command : ndarray, shape (M, n)
         Valve command, V.
-    noise : ndarray, shape (M, n, 3) or (0, 0, 3)
+    noise : ndarray, shape (M, n, N_SENSORS) or (0, 0, N_SENSORS)
         Standard normal draws for flow, speed, torque; an empty array means no noise.
     out : ndarray, shape (M, n, CHANNELS_OUT)
         Output: flow [L/min], speed [rad/s], torque [N·m], supply and load pressure [bar], temperature [°C].
@@ -254,12 +259,12 @@ def _advance_compiled(params, effects, state, command, noise, out, fs, t0, subst
             t = t0 + s[COUNT] / fs
             # 1. sensors at t_k
             sens = _sensors(coef, e, y, t, clock)
-            for c in range(3):
+            for c in range(N_SENSORS):
                 value = y[YF] if c == lowpass else sens[c]
                 out[m, k, c] = value + (p[_NOISE + c] * noise[m, k, c] if noisy else 0.0)
-            out[m, k, 3] = max(y[PS], 0.0) / 1e5
-            out[m, k, 4] = y[PL] / 1e5
-            out[m, k, 5] = y[TEMP] if e[_THERMAL] > 0.5 else _T_NOMINAL
+            out[m, k, _SUPPLY] = max(y[PS], 0.0) / PA_PER_BAR
+            out[m, k, _LOAD] = y[PL] / PA_PER_BAR
+            out[m, k, _TEMPERATURE] = y[TEMP] if e[_THERMAL] > 0.5 else _T_NOMINAL
             # 2. command through the play operator and the delay line
             u = command[m, k]
             if hysteresis:

@@ -19,6 +19,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.parameters import PlantParameters
 
@@ -31,7 +32,8 @@ WIDE_PARAMETERS: tuple[str, ...] = ("Cp", "Cvl", "Ctm", "Bm", "BL")
 """Leakages and damping: drawn within ±``wide_spread`` (they vary most between units)."""
 DRIFT_PARAMETERS: tuple[str, ...] = ("Cp", "Cvl", "Ctm", "Bm", "BL", "TL")
 """What moves between days of one unit: leakages (seals, oil), damping (bearings, oil), the load's brake torque."""
-NOISE_CHANNELS: tuple[str, ...] = ("noise_flow", "noise_speed", "noise_torque")
+NOISE_CHANNELS: tuple[str, ...] = tuple(f"noise_{s}" for s in PLANT.sensors)
+"""Sensor-noise parameters, one per health sensor in kernel column order."""
 
 
 def _check_fraction(name: str, value: float, upper: float = 0.9) -> float:

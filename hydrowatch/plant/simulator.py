@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.dynamics import N_COEF, N_LOAD, N_ODE, PS, TEMP, coefficients, rates
 from hydrowatch.plant.effects import (
@@ -21,15 +22,15 @@ from hydrowatch.plant.effects import (
     effect_row,
     resolve_effects,
 )
-from hydrowatch.plant.kernel import CHANNELS_OUT, COUNT, state_width
+from hydrowatch.plant.kernel import CHANNELS_OUT, COUNT, N_SENSORS, state_width
 from hydrowatch.plant.kernel import advance as _advance
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 
-CHANNELS: tuple[str, ...] = ("flow", "speed", "torque", "supply_pressure", "load_pressure")
+_OUT_NAMES = PLANT.measured
+"""Names of the kernel's output columns (:meth:`hydrowatch.channels.ChannelSet.column`)."""
+CHANNELS: tuple[str, ...] = tuple(c for c in _OUT_NAMES if c != "temperature")
 """Sensor channels of :meth:`PlantSimulator.step` (``temperature`` [°C] comes as well, always)."""
-_OUT_NAMES = (*CHANNELS, "temperature")
-assert len(_OUT_NAMES) == CHANNELS_OUT
 
 DEFAULT_SUBSTEPS = 10
 """RK4 steps per 200 Hz sample (2 kHz); agrees with RK4 at 10 kHz to < 1e-3 relative (docs/plant.md)."""
@@ -161,11 +162,11 @@ class PlantSimulator:
         command = self._command(voltage)
         n = command.shape[1]
         if self.noise:
-            draws = np.empty((self.n_machines, n, 3))
+            draws = np.empty((self.n_machines, n, N_SENSORS))
             for m, rng in enumerate(self._rngs):
-                draws[m] = rng.standard_normal((n, 3))
+                draws[m] = rng.standard_normal((n, N_SENSORS))
         else:
-            draws = np.empty((0, 0, 3))
+            draws = np.empty((0, 0, N_SENSORS))
         out = np.empty((self.n_machines, n, CHANNELS_OUT))
         t = self.t0 + (self._state[0, COUNT] + np.arange(n)) / self.sample_rate
         _advance(self._params, self._effects, self._state, command, draws, out, self.sample_rate, self.t0,
@@ -201,7 +202,7 @@ class PlantSimulator:
         n = int(round(seconds * self.sample_rate))
         command = self._command(np.repeat(level[:, None], n, axis=1))
         out = np.empty((self.n_machines, n, CHANNELS_OUT))
-        _advance(self._params, self._effects, self._state, command, np.empty((0, 0, 3)), out, self.sample_rate,
+        _advance(self._params, self._effects, self._state, command, np.empty((0, 0, N_SENSORS)), out, self.sample_rate,
                  self.t0, self.substeps, False)
 
     def _command(self, voltage: np.ndarray) -> np.ndarray:
@@ -282,7 +283,7 @@ def simulate(
     out = sim.step(command)
     info = dict(meta or {})
     info.update(parameters=params.to_dict(), effects=sim.effects[0], seed=sim.seed, noise=noise, settled=settle)
-    return Recording(out["t"], {name: out[name] for name in ("voltage", *_OUT_NAMES)}, info)
+    return Recording(out["t"], {name: out[name] for name in PLANT.names}, info)
 
 
 def linear_modes(
@@ -305,7 +306,7 @@ def linear_modes(
     y0 = sim._state[0, :N_ODE].copy()
     coef = np.empty(N_COEF + N_LOAD)
     coefficients(sim._params[0], coef)
-    row, ds, sensors = sim._effects[0], np.empty(N_ODE), np.empty(3)
+    row, ds, sensors = sim._effects[0], np.empty(N_ODE), np.empty(N_SENSORS)
     scale = np.maximum(np.abs(y0), 1.0) * 1e-6
     jac = np.zeros((N_ODE, N_ODE))
     for j in range(N_ODE):

@@ -25,11 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from hydrowatch.plant.dynamics import M3S_TO_LPM
+from hydrowatch.channels import M3S_TO_LPM, PA_TO_BAR, PLANT
 from hydrowatch.plant.parameters import PlantParameters
-
-PA_TO_BAR = 1e-5
-"""Pa → bar."""
 
 
 @dataclass(frozen=True)
@@ -176,5 +173,5 @@ def steady_curve(voltages: np.ndarray, parameters: PlantParameters | None = None
         ``supply_pressure``, ``load_pressure`` [bar].
     """
     rows = [steady_state(float(u), parameters).sensors() for u in np.atleast_1d(np.asarray(voltages, dtype=float))]
-    names = ("voltage", "flow", "speed", "torque", "supply_pressure", "load_pressure")
+    names = [c for c in PLANT.names if c != "temperature"]  # the nominal steady state holds no oil temperature
     return {name: np.array([row[name] for row in rows]) for name in names}

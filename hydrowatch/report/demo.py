@@ -9,7 +9,7 @@ from typing import Any
 from hydrowatch.report.html import Section, write_html
 from hydrowatch.report.plots import confusion_png, timeline_png
 from hydrowatch.report.training import training_section
-from hydrowatch.training.trainer import TrainingResult
+from hydrowatch.results import TrainingResult
 
 
 def accuracy_section(accuracy: Mapping[str, list[dict[str, Any]]]) -> Section:

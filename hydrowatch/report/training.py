@@ -21,7 +21,7 @@ import numpy as np
 from hydrowatch.recording import UNITS
 from hydrowatch.report.html import Section
 from hydrowatch.report.plots import confusion_png, correlations_png, error_distributions_png, pole_zero_png
-from hydrowatch.training.trainer import TrainingResult
+from hydrowatch.results import TrainingResult
 
 
 def run_name(result: TrainingResult) -> str:

@@ -19,7 +19,7 @@ _EXPORTS = {
     "SensorReference": "reference",
     "pooled_accuracy": "scoring", "score_recording": "scoring",
     "log_training": "tracking", "tracking_uri": "tracking",
-    "TrainingResult": "trainer", "train": "trainer",
+    "train": "trainer",
     "Chunk": "online", "OnlineScorer": "online", "WindowVerdict": "online",
 }
 

@@ -15,11 +15,11 @@ import numpy as np
 
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.metrics import confusion_matrix, per_class_recall
-from hydrowatch.health.verdict import UNKNOWN
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.scoring import pooled_accuracy, score_recording
+from hydrowatch.verdict import UNKNOWN
 
 COMMANDS = ("training", "duty_cycle", "narrow_range")
 NARROW_VOLTS = (1.0, 3.0)

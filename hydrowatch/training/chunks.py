@@ -3,8 +3,10 @@
 :func:`chunks_from_batches` turns the ``sensor_chunk`` record batches of one scorer tick into a
 :class:`ChunkBatch` (flat arrays, one Arrow → NumPy conversion per column); :func:`plan_chunk`
 cuts one machine's chunk into :class:`Segment` s and the :class:`Break` s between them (a gap, a
-late or out-of-order chunk, NaN, irregular spacing), which make the window in progress ``invalid``.
-:class:`WindowVerdict` is what the scorer makes of a window.
+late or out-of-order chunk, NaN, irregular spacing), which make the window in progress ``invalid``
+(:func:`cut_short`). :func:`clean_chunks` finds, for a whole update at once, the chunks that need no
+cutting. :class:`WindowVerdict` is what the scorer makes of a window. These rules are the same for
+every health method: both online engines call these functions.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from hydrowatch.health.verdict import Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ
+from hydrowatch.verdict import INVALID, Verdict
 
 DT = 1.0 / SAMPLE_RATE_HZ
 TOLERANCE = 0.5 * DT
@@ -216,3 +218,74 @@ def plan_chunk(t: np.ndarray, x: np.ndarray, columns: Sequence[str],
     if start < t.size:
         ops.append(Segment(t[start:], x[start:]))
     return ops, float(t[-1] + DT) if np.isfinite(t[-1]) else next_t
+
+
+def clean_chunks(batch: ChunkBatch, columns: Sequence[str], expected: np.ndarray, once: np.ndarray,
+                 defaults: Mapping[str, float]) -> np.ndarray:
+    """Which chunks of an update are clean: fed whole, without :func:`plan_chunk`.
+
+    A chunk is clean when it is its machine's only chunk in the update (``once``), has at least
+    2 samples, every column in ``columns`` (or a default for it), only finite times and values,
+    regular spacing (1/200 s ± :data:`TOLERANCE`) and its first sample where its machine's next one
+    is expected. Anything else goes through :func:`plan_chunk`, which finds the breaks.
+
+    Parameters
+    ----------
+    batch : ChunkBatch
+        The update's chunks, m of them.
+    columns : sequence of str
+        The columns the method reads.
+    expected : ndarray, shape (m,)
+        When each chunk's machine's next sample is expected, s (NaN: anything goes).
+    once : ndarray of bool, shape (m,)
+        Whether the chunk is its machine's only one in the update.
+    defaults : mapping of str to float
+        Columns a chunk may lack (their value is then the default).
+
+    Returns
+    -------
+    ndarray of bool, shape (m,)
+    """
+    lengths = np.diff(batch.offsets)
+    ok = np.asarray(once, dtype=bool) & (lengths >= 2)
+    for c in columns:
+        if c not in defaults:
+            ok &= ~batch.absent[c]
+    starts = batch.offsets[:-1]
+    bad = ~np.isfinite(batch.t)
+    for c in columns:
+        bad |= ~np.isfinite(batch.channels[c]) & ~np.repeat(batch.absent[c], lengths)
+    if bad.any():
+        ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(bad), side="right") - 1)] = False
+    step = np.abs(np.diff(batch.t) - DT) > TOLERANCE
+    joins = starts[1:]
+    step[joins[(joins > 0) & (joins < batch.t.size)] - 1] = False  # from one chunk to the next is no spacing
+    if step.any():
+        ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(step) + 1, side="right") - 1)] = False
+    first = batch.t[np.minimum(starts, max(batch.t.size - 1, 0))] if batch.t.size else np.zeros(len(batch))
+    return ok & (np.isnan(expected) | (np.abs(first - expected) <= TOLERANCE))
+
+
+def cut_short(machine: str, begun: int, fed: int, t0: float, brk: Break) -> WindowVerdict | None:
+    """The ``invalid`` verdict of the window in progress when ``brk`` breaks a machine's stream.
+
+    Parameters
+    ----------
+    machine : str
+    begun : int
+        First sample of the window in progress, counted from ``t0``.
+    fed : int
+        Samples received since ``t0``.
+    t0 : float
+        Time of the stream's sample 0, s.
+    brk : Break
+
+    Returns
+    -------
+    WindowVerdict or None
+        From ``t0 + begun·DT`` to the break, state ``invalid`` with the break's reason; None when
+        no sample of that window has come yet (nothing was cut short).
+    """
+    if fed <= begun:
+        return None
+    return WindowVerdict(machine, t0 + begun * DT, float(brk.t), Verdict(INVALID, None, {}, brk.reason))

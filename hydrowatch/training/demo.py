@@ -25,17 +25,19 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.bus import BusSettings, Publisher, Subscriber, alive, free_port, key, key_expr, open_session
+from hydrowatch.channels import STUDY_RIG
 from hydrowatch.io import write_recording
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.log import event, get_logger
+from hydrowatch.plant.excitation import FilteredNoiseCommand
 from hydrowatch.plant.faults import STUDY_STATES
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate_states
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from hydrowatch.report.fleet_table import FleetTable, verdict_rows
+from hydrowatch.results import TrainingResult
 from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.pipeline import train_and_track
 from hydrowatch.training.tracking import set_alias
-from hydrowatch.training.trainer import TrainingResult
 
 _log = get_logger(__name__)
 FLEET = "demo"
@@ -100,8 +102,6 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
         _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, *bus], logs / "scorer.log"),
     ]
     fleet = Fleet(list(MACHINES), fleet=FLEET, seed=s.seed + 1)
-    from services.plant.command import FilteredNoiseCommand  # the plant service's endless filtered noise
-
     command = FilteredNoiseCommand(fleet.n_machines, seed=s.seed + 2)
     table = FleetTable()
     timelines: dict[str, list[tuple[float, float, str]]] = {m: [] for m in fleet.machine_ids}
@@ -121,7 +121,7 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
                 out = fleet.step(command.next(n))
                 labels = fleet.states
                 for i, machine in enumerate(fleet.machine_ids):
-                    channels = {c: out[c][i] for c in ("voltage", "flow", "speed", "torque", "temperature")}
+                    channels = {c: out[c][i] for c in STUDY_RIG}
                     channels["state"] = np.full(n, labels[i], dtype=object)
                     publisher.put(key(FLEET, machine, "sensors"), sensor_chunk_from_arrays(out["t"][i], channels))
                     truth[machine].append((float(out["t"][i][0]), labels[i]))

@@ -18,12 +18,15 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
+from hydrowatch.condition.estimates import TEMPERATURE
 from hydrowatch.errors import DataError
 from hydrowatch.health.streaming import MachineWindow, WindowResult
-from hydrowatch.health.verdict import Verdict, judge
+from hydrowatch.health.verdict import judge
 from hydrowatch.recording import INPUT
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.reference import StreamState
+from hydrowatch.verdict import Verdict
 
 REFERENCE_TEMPERATURE_C = 40.0
 """Oil temperature assumed when a parity bundle uses it and a chunk has none, °C (the relations' reference)."""
@@ -78,11 +81,11 @@ class ParityEngine:
         if bundle.condition is None:
             raise DataError("a parity bundle must hold a condition model. Got none; retrain with `hydrowatch train`.")
         self.model = bundle.condition
-        self.columns = [INPUT, "flow", "speed", "torque"]
+        self.columns = list(WINDOW_CHANNELS)
         self.defaults = {}
         if bundle.manifest.get("temperature"):
-            self.columns.append("temperature")
-            self.defaults["temperature"] = REFERENCE_TEMPERATURE_C
+            self.columns.append(TEMPERATURE)
+            self.defaults[TEMPERATURE] = REFERENCE_TEMPERATURE_C
         self.window, self.hop = bundle.window, bundle.hop
         self._shape = (len(bundle.kl_rows), len(bundle.states))
 

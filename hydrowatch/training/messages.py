@@ -7,9 +7,9 @@ from collections.abc import Sequence
 import numpy as np
 import pyarrow as pa
 
-from hydrowatch.health.verdict import INVALID, UNKNOWN
 from hydrowatch.schemas import HEALTH_VERDICT, KL_WINDOW, wire_schema
 from hydrowatch.training.online import WindowVerdict
+from hydrowatch.verdict import INVALID, UNKNOWN
 
 OPEN_SET_REASON = "no trained state explains the window (open-set rule)"
 

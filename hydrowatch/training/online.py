@@ -34,7 +34,6 @@ import numpy as np
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.streaming import MachineWindow
-from hydrowatch.health.verdict import INVALID, Verdict
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.chunks import (
     DT,
@@ -46,6 +45,8 @@ from hydrowatch.training.chunks import (
     WindowVerdict,
     chunk_matrix,
     chunks_from_batches,
+    clean_chunks,
+    cut_short,
     plan_chunk,
 )
 from hydrowatch.training.engines import EntropyEngine, ParityEngine, engine_for
@@ -132,59 +133,46 @@ class OnlineScorer:
         return _Stream(self._engine.new_states(), self._engine.new_window())
 
     def _plans(self, chunks: Sequence[Chunk]) -> dict[str, list[Segment | Break]]:
-        """Every machine's segments and breaks; clean chunks are checked together (one array per length).
+        """Every machine's segments and breaks; clean chunks are found for the whole update at once.
 
-        A chunk is clean when it is its machine's only chunk in the update, has every column,
-        only finite values, regular spacing and follows the previous chunk: it becomes one segment
-        without going through :meth:`_plan` (the per-chunk Python cost is what limits the fleet size).
+        A clean chunk (:func:`~hydrowatch.training.chunks.clean_chunks`) becomes one segment
+        without going through :func:`plan_chunk` (the per-chunk Python cost limits the fleet size).
         """
-        plans: dict[str, list[Segment | Break]] = {}
+        batch = ChunkBatch.from_chunks(chunks, self._columns)
+        if not len(batch):
+            return {}
         count: dict[str, int] = {}
-        for chunk in chunks:
-            count[chunk.machine] = count.get(chunk.machine, 0) + 1
-            if chunk.machine not in self._streams:
-                self._streams[chunk.machine] = self._new_stream()
-        groups: dict[int, list[Chunk]] = {}
-        for chunk in chunks:
-            if count[chunk.machine] == 1 and all(c in chunk.channels for c in self._columns):
-                groups.setdefault(len(chunk.t), []).append(chunk)
-        fast: dict[str, Segment] = {}
-        for n, group in groups.items():
-            if n < 2:
-                continue
-            t = np.asarray(np.stack([c.t for c in group]), dtype=np.float64)  # (M, n)
-            x = np.stack([np.stack([c.channels[k] for c in group]) for k in self._columns], axis=2)  # (M, n, width)
-            expected = np.array([np.nan if (nt := self._streams[c.machine].next_t) is None else nt for c in group])
-            clean = (np.isfinite(x).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
-                     & (np.abs(np.diff(t, axis=1) - DT) <= TOLERANCE).all(axis=1)
-                     & (np.isnan(expected) | (np.abs(t[:, 0] - expected) <= TOLERANCE)))
-            for i in np.flatnonzero(clean).tolist():
-                fast[group[i].machine] = Segment(t[i], x[i])
-                self._streams[group[i].machine].next_t = float(t[i, -1] + DT)
-        for chunk in chunks:
-            feed = fast.get(chunk.machine)
-            if feed is not None:
-                plans[chunk.machine] = [feed]
+        for machine in batch.machines:
+            count[machine] = count.get(machine, 0) + 1
+            if machine not in self._streams:
+                self._streams[machine] = self._new_stream()
+        streams = [self._streams[m] for m in batch.machines]
+        expected = np.array([np.nan if s.next_t is None else s.next_t for s in streams])
+        once = np.array([count[m] == 1 for m in batch.machines], dtype=bool)
+        clean = clean_chunks(batch, self._columns, expected, once, self._engine.defaults)
+        plans: dict[str, list[Segment | Break]] = {}
+        for i, machine in enumerate(batch.machines):
+            stream = streams[i]
+            a, b = int(batch.offsets[i]), int(batch.offsets[i + 1])
+            if clean[i]:
+                t = batch.t[a:b]
+                plans[machine] = [Segment(t, np.stack([batch.channels[c][a:b] for c in self._columns], axis=1))]
+                stream.next_t = float(t[-1] + DT)
             else:
-                stream = self._streams[chunk.machine]
-                ops, stream.next_t = plan_chunk(chunk.t, chunk_matrix(chunk, self._columns, self._engine.defaults),
+                ops, stream.next_t = plan_chunk(batch.t[a:b], chunk_matrix(batch[i], self._columns,
+                                                                           self._engine.defaults),
                                                 self._columns, stream.next_t)
-                plans.setdefault(chunk.machine, []).extend(ops)
+                plans.setdefault(machine, []).extend(ops)
         return plans
 
     def _break(self, machine: str, stream: _Stream, op: Break) -> tuple[_Stream, WindowVerdict | None]:
-        """Restart the stream; the window in progress becomes an invalid verdict."""
+        """Restart the stream; the window in progress (or the warm-up) becomes an invalid verdict."""
         out = None
         if stream.seen:
-            begun = stream.window.n_windows * self._engine.hop
-            if stream.fed_t is not None and stream.fed > begun:
-                start = stream.fed_t + begun * DT
-            elif stream.fed_t is None and stream.start_t is not None:
-                start = stream.start_t
-            else:
-                start = None
-            if start is not None:
-                out = WindowVerdict(machine, float(start), float(op.t), Verdict(INVALID, None, {}, op.reason))
+            if stream.fed_t is not None:
+                out = cut_short(machine, stream.window.n_windows * self._engine.hop, stream.fed, stream.fed_t, op)
+            elif stream.start_t is not None:  # still warming up: the window would have begun with the stream
+                out = cut_short(machine, 0, stream.seen, stream.start_t, op)
         fresh = self._new_stream()
         fresh.next_t = stream.next_t
         return fresh, out
@@ -220,7 +208,7 @@ class OnlineScorer:
         """
         if self._parity is not None:
             return self._parity.update(chunks)
-        plans = self._plans(list(chunks))  # a ChunkBatch makes its Chunk views once
+        plans = self._plans(chunks)
         out: list[WindowVerdict] = []
         closed: list[tuple[str, Any, float]] = []
         while plans:

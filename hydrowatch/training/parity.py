@@ -23,16 +23,17 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
+from hydrowatch.condition.estimates import WIDTH
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
-from hydrowatch.health.verdict import UNKNOWN
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import Recording
+from hydrowatch.results import TrainingResult
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.data import ordered_states
 from hydrowatch.training.options import TrainingSettings
-from hydrowatch.training.trainer import TrainingResult
+from hydrowatch.verdict import UNKNOWN
 
 _log = get_logger(__name__)
 TEST_FRACTION = 0.15
@@ -57,7 +58,7 @@ def split_windows(runs: list[Recording], window: int, hop: int, temperature: boo
         for part, into in ((run.slice(0, cut), fit), (run.slice(cut, len(run)), test)):
             if len(part) >= window:
                 into.append(windows_from_recording(part, window, hop, temperature=temperature))
-    channels = 5 if temperature else 4
+    channels = WIDTH + 1 if temperature else WIDTH
     empty = np.empty((0, window, channels))
     return (np.concatenate(fit) if fit else empty), (np.concatenate(test) if test else empty)
 

@@ -7,7 +7,8 @@ machines' clean chunks is a handful of NumPy operations, not 1000 Python objects
 
 1. the chunks (a :class:`~hydrowatch.training.chunks.ChunkBatch`) are checked all at once: a
    machine's only chunk in the update, every column present (or defaulted), finite, regular and
-   following its previous chunk is *clean* and written with one scatter per chunk length;
+   following its previous chunk is *clean* (:func:`~hydrowatch.training.chunks.clean_chunks`, the
+   rule every method's stream uses) and written with one scatter per chunk length;
 2. anything else (a gap, NaN, a late chunk, several chunks of one machine) goes through
    :func:`~hydrowatch.training.chunks.plan_chunk` machine by machine, as before: a break makes the
    window in progress ``invalid`` with its reason and restarts the machine's window;
@@ -35,8 +36,16 @@ import numpy as np
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
-from hydrowatch.health.verdict import INVALID, Verdict
-from hydrowatch.training.chunks import DT, TOLERANCE, Break, Chunk, ChunkBatch, WindowVerdict, plan_chunk
+from hydrowatch.training.chunks import (
+    DT,
+    Break,
+    Chunk,
+    ChunkBatch,
+    WindowVerdict,
+    clean_chunks,
+    cut_short,
+    plan_chunk,
+)
 from hydrowatch.training.engines import ParityEngine
 
 
@@ -186,29 +195,9 @@ class ParityStreams:
         self._skip[slots] = max(0, self.hop - self.window)
 
     def _clean(self, batch: ChunkBatch, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Chunk indices that are clean (module docstring) and the rest, in arrival order."""
-        lengths = np.diff(batch.offsets)
+        """Chunk indices that are clean (:func:`~hydrowatch.training.chunks.clean_chunks`) and the rest, in order."""
         once = np.bincount(slots, minlength=len(self._names))[slots] == 1
-        usable = once & (lengths >= 2)
-        for c, absent in batch.absent.items():
-            if c not in self.defaults:
-                usable &= ~absent
-        ok = np.zeros(len(batch), dtype=bool)
-        ok[usable] = True
-        starts = batch.offsets[:-1]
-        bad = ~np.isfinite(batch.t)
-        for c, values in batch.channels.items():
-            bad |= ~np.isfinite(values) & ~np.repeat(batch.absent[c], lengths)
-        if bad.any():
-            ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(bad), side="right") - 1)] = False
-        step = np.abs(np.diff(batch.t) - DT) > TOLERANCE
-        joins = starts[1:]
-        step[joins[(joins > 0) & (joins < batch.t.size)] - 1] = False  # from one chunk to the next is no spacing
-        if step.any():
-            ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(step) + 1, side="right") - 1)] = False
-        expected = self._next_t[slots]
-        first = batch.t[np.minimum(starts, max(batch.t.size - 1, 0))] if batch.t.size else np.zeros(len(batch))
-        ok &= np.isnan(expected) | (np.abs(first - expected) <= TOLERANCE)
+        ok = clean_chunks(batch, self.columns, self._next_t[slots], once, self.defaults)
         return np.flatnonzero(ok), np.flatnonzero(~ok)
 
     def _matrix(self, batch: ChunkBatch, rows: np.ndarray) -> np.ndarray:
@@ -251,10 +240,9 @@ class ParityStreams:
         for op in ops:
             if isinstance(op, Break):
                 begun = int(self._phase[slot] + self._count[slot] * self.hop)
-                if self._fed[slot] > begun:
-                    start = float(self._t0[slot]) + begun * DT
-                    out.append(WindowVerdict(self._names[slot], start, float(op.t), Verdict(INVALID, None, {},
-                                                                                           op.reason)))
+                invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
+                if invalid is not None:
+                    out.append(invalid)
                 self._restart(slot)
             else:
                 one = np.array([slot])

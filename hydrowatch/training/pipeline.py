@@ -8,12 +8,13 @@ from pathlib import Path
 from typing import Any
 
 from hydrowatch.report.training import run_metrics, write_training_artifacts
+from hydrowatch.results import TrainingResult
 from hydrowatch.training.accuracy import COMMANDS, accuracy_metrics, measure_accuracy
 from hydrowatch.training.bundle import write_index
 from hydrowatch.training.data import read_labelled
 from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME, TrainingSettings
 from hydrowatch.training.tracking import log_training
-from hydrowatch.training.trainer import TrainingResult, train
+from hydrowatch.training.trainer import train
 
 
 def train_and_track(

@@ -22,9 +22,9 @@ import numpy as np
 from hydrowatch.condition import windows_from_recording
 from hydrowatch.condition.stream import POOLED_WINDOWS
 from hydrowatch.errors import ParameterError
-from hydrowatch.health.verdict import INVALID, UNKNOWN, Verdict
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 from hydrowatch.training.bundle import ModelBundle
+from hydrowatch.verdict import INVALID, UNKNOWN, Verdict
 
 
 def window_truth(recording: Recording, starts: np.ndarray, window: int, trained: list[str]) -> list[str | None]:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -29,6 +28,7 @@ from hydrowatch.health.model import HealthModel
 from hydrowatch.health.plan import split_state
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import INPUT, SENSORS, Recording
+from hydrowatch.results import TrainingResult
 from hydrowatch.sysid.correlation import autocorrelation, confidence_bound, cross_correlation
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.data import HEALTHY, ordered_states
@@ -36,48 +36,6 @@ from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.reference import SensorReference
 
 _log = get_logger(__name__)
-
-@dataclass
-class TrainingResult:
-    """A trained bundle with what was measured on the way.
-
-    Attributes
-    ----------
-    bundle : ModelBundle
-    base_errors : dict of str to ndarray, shape (n_k, n_sensors)
-        Prediction errors of each state's base part (figures 6.1-6.3); empty for the parity method.
-    window_entropies : dict of str to ndarray, shape (m_k, n_rows, n_states)
-        Relative entropies of each state's classifier windows (table 6.1 is one such window), rows
-        the sensors; for the parity method the relation scores of the test windows, rows the relations.
-    evaluation : dict
-        ``test_accuracy``, ``per_class_recall``, ``confusion_matrix`` (true rows), ``labels``, ...
-    reference : dict
-        Empty for the parity method, else per sensor: ``nrmse_one_step``, the model summary (γ for
-        NARX; Q, S, roots for Box-Jenkins) and ``correlations`` of the healthy base part's errors
-        (Eqs. 4.22, 4.23: ``acf`` lags 0..20, ``ccf`` with the voltage lags -20..20, ``bound``).
-    seconds : float
-        Wall-clock training time, s.
-    """
-
-    bundle: ModelBundle
-    base_errors: dict[str, np.ndarray]
-    window_entropies: dict[str, np.ndarray]
-    evaluation: dict[str, Any]
-    reference: dict[str, Any]
-    seconds: float
-
-    def summary(self) -> dict[str, Any]:
-        """The JSON summary ``hydrowatch train`` prints."""
-        return {
-            "version": self.bundle.version, "method": self.bundle.method,
-            "reference": self.bundle.manifest["reference"],
-            "states": self.bundle.states, "sensors": self.bundle.sensors,
-            "nrmse_one_step": {s: r["nrmse_one_step"] for s, r in self.reference.items()},
-            "test_accuracy": self.evaluation["test_accuracy"],
-            "per_class_recall": self.evaluation["per_class_recall"],
-            "test_windows": self.evaluation["test_windows"], "seconds": round(self.seconds, 1),
-        }
-
 
 def _longest(runs: list[Recording]) -> Recording:
     return max(runs, key=len)

@@ -24,19 +24,20 @@ from hydrowatch.bus import Publisher, Shard, StatusReporter, add_bus_arguments, 
 from hydrowatch.bus.history import ChunkHistory, HistoryServer
 from hydrowatch.bus.service import LINGER_S, service_main
 from hydrowatch.bus.session import settings_from_args
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant import PlantSimulator
-from hydrowatch.plant.excitation import parse_volts
+from hydrowatch.plant.excitation import FilteredNoiseCommand, parse_volts
 from hydrowatch.plant.faults import parse_state, random_state_parameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
-from services.plant.command import FilteredNoiseCommand
 from services.plant.encoder import FleetEncoder
 from services.plant.stepper import SimulationThread
 
 NAME = "plant"
 HELP = "publish a simulated fleet on hydro/<fleet>/<machine>/sensors in real time or faster"
-CHANNELS = ("voltage", "flow", "speed", "torque", "supply_pressure", "load_pressure", "temperature")
+CHANNELS = PLANT.names
+"""Channels of every published chunk: all the plant's, in ``sensor_chunk`` order."""
 log = get_logger("services.plant")
 
 

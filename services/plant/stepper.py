@@ -17,7 +17,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from hydrowatch.plant import PlantSimulator
-from services.plant.command import FilteredNoiseCommand
+from hydrowatch.plant.excitation import FilteredNoiseCommand
 
 _POLL_S = 0.1
 """How often a blocked producer looks whether it was closed, s."""
