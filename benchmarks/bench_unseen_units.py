@@ -47,7 +47,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
-from hydrowatch.condition.commission import CommissioningError, commission
+from hydrowatch.condition.commission import WHOLE_FIT, CommissioningError, commission
 from hydrowatch.health.verdict import Verdict
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -266,13 +266,14 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
         base, k = first[len(states)], len(states)
         plain: list[Tally] = []
         for how, command in runs.items():
-            commissioned, refused, supply = [], 0, 0
+            commissioned, refused, supply, whole = [], 0, 0, 0
             for j, (unit, day) in enumerate(units[1:], start=1):
                 seed = 50_000 + 1000 * j + args.seed
                 healthy = simulate([unit], command(seed + 1), seed)[0]
                 try:
                     done = commission(base, healthy)
                     model, supply = done.model, supply + (done.supply == "identified")
+                    whole += done.supply == WHOLE_FIT
                 except CommissioningError as exc:  # the unit keeps the fleet model
                     print(f"unit {j + 1}: commissioning refused: {exc}")
                     model, refused = base, refused + 1
@@ -287,8 +288,9 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
             out[f"{k} states, commissioned on {how}"] = summarise(
                 commissioned, f"{k} states, first unit's model, commissioned on 300 s of healthy {how}")
             out[f"{k} states, commissioned on {how}, refused"] = refused
+            out[f"{k} states, commissioned on {how}, whole-recording fit"] = whole
             print(f"commissioning on {how}: refused on {refused} of {len(units) - 1} healthy units, supply "
-                  f"identified on {supply}")
+                  f"identified on {supply}, the whole recording's fit (halves disagree) kept on {whole}")
     return out
 
 

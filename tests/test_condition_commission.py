@@ -6,11 +6,13 @@ Small random units (hydrowatch.plant.population): every parameter ±20 %, leakag
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import hydrowatch.condition.commission as C
 from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
@@ -85,6 +87,23 @@ def test_a_commissioned_unit_beats_the_uncommissioned_one(units, models) -> None
     assert np.mean(list(after.values())) >= np.mean(list(before.values())) + 0.3, (before, after)
     assert after["healthy"] >= 0.99
     assert fleet.features_.nominal_ is not done.model.features_.nominal_  # the fleet model is left as it was
+
+
+def test_a_supply_that_fails_the_self_check_gives_way_to_the_whole_recordings_fit(units, models, monkeypatch) -> None:
+    """The trained unit's supply kept (halves disagree) but wrong for this unit: the whole fit takes over if it
+    reads the recording healthy; if neither does, the refusal says what to record."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    f = models[0].features_
+    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
+    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: (wrong, "kept from the trained unit", 0.5))
+    done = commission(models[0], healthy)
+    assert done.supply == C.WHOLE_FIT and done.healthy_share >= 0.9
+    assert done.unit.parameters.Pc == pytest.approx(truth.parameters.Pc, rel=0.05)  # the wrong one read 8 % healthy
+    monkeypatch.setattr(C, "identify_unit", lambda *a, **k: wrong)
+    with pytest.raises(CommissioningError, match="record 5 minutes of filtered noise"):
+        commission(models[0], healthy)
 
 
 @pytest.mark.parametrize("case, says", [
