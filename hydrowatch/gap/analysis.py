@@ -42,12 +42,17 @@ class Unidentified:
     correction : SparseCorrection
         Fitted on the residual of the final catalog model.
     prediction : ndarray, shape (n,)
-        Corrected simulation of the sensor.
+        Corrected simulation of the sensor (the final model's when the correction is not applied).
+    applied : bool
+        Whether the correction cuts the held-out error by >= 10 % and so travels with the saved
+        model; an error beyond the discovery test that no catalog effect and no library term
+        describes is still reported (it is there), without a correction.
     """
 
     sensor: str
     correction: SparseCorrection
     prediction: np.ndarray
+    applied: bool = True
 
 
 class GapAnalyser:
@@ -113,7 +118,8 @@ class GapAnalyser:
         final_test = residual_test(aligned, diagnosis.final.prediction, n_final) if diagnosis.accepted else test
         unidentified = []
         if self.correct_unknown and final_test.fails:
-            unidentified = _correct(aligned, diagnosis.final, nominal.omega_p, final_test.beyond)
+            unidentified = _correct(aligned, diagnosis.final, nominal.omega_p, final_test.beyond,
+                                    report_all=not diagnosis.accepted)
         self.aligned_ = aligned
         self.nominal_prediction_ = nominal_prediction
         self.calibrated_ = calibrated
@@ -144,10 +150,13 @@ def analyse_gap(recording: Recording, nominal: PlantParameters | None = None, **
     return GapAnalyser(nominal=nominal, **kwargs).fit(recording).report
 
 
-def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float, sensors: tuple[str, ...]
-             ) -> list[Unidentified]:
+def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float, sensors: tuple[str, ...],
+             report_all: bool) -> list[Unidentified]:
     """Sparse corrections of ``sensors`` (those whose error the final model leaves beyond noise and
-    parameter uncertainty, discovery.py) that cut their held-out error by >= 10 %."""
+    parameter uncertainty, discovery.py) that cut their held-out error by >= 10 %; with
+    ``report_all`` (no catalog effect was accepted) every such sensor is reported, a correction that
+    cuts less being left unapplied. After catalog effects, a remainder without a correction that
+    helps is not reported (an effect model a little off is not missing physics)."""
     library = build_library(aligned.voltage, final.prediction, aligned.t, pump_speed=pump_speed)
     residual = aligned.measured - final.prediction
     out = []
@@ -156,6 +165,8 @@ def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float
         corr = SparseCorrection().fit(library, residual[i], aligned.fit_mask, aligned.holdout_mask)
         if corr.holdout_gain_ >= 0.1:
             out.append(Unidentified(sensor, corr, final.prediction[i] + corr.predict(library)))
+        elif report_all:
+            out.append(Unidentified(sensor, corr, final.prediction[i], applied=False))
     return out
 
 

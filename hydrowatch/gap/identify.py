@@ -32,6 +32,10 @@ DETERMINED_SD = 0.05
 ENTANGLED = 0.5
 """|Posterior correlation| at which two parameters are reported as entangled."""
 
+RANK_TOLERANCE = 1e-3
+"""Singular values of the weighted sensitivities below this share of the largest count as zero
+information (the central differences' error along an exact symmetry is of that order)."""
+
 _STEP = 1e-2
 """Central-difference step on ln(value)."""
 
@@ -123,8 +127,9 @@ def identify(aligned: AlignedRecording, fit: OutputErrorFit) -> tuple[Identifiab
     weight = np.repeat(1.0 / ceiling, int(m.sum()))
     jac = np.column_stack([(residual(preds[1 + 2 * i]) - residual(preds[2 + 2 * i])) / (2 * _STEP) for i in range(k)])
     jac *= weight[:, None]
-    information = jac.T @ jac
-    singular = np.linalg.svd(jac, compute_uv=False)
+    _, singular, vt = np.linalg.svd(jac, full_matrices=False)
+    kept = singular > RANK_TOLERANCE * singular[0]  # numerical rank: the rest is finite-difference error
+    information = (vt[kept].T * singular[kept] ** 2) @ vt[kept]
     if space.prior is not None:
         information[np.arange(k), np.arange(k)] += 1.0 / PRIOR_SD**2
     cov = np.linalg.pinv(information)

@@ -98,8 +98,15 @@ def _effect_entry(aligned: AlignedRecording, trial: Trial, before: np.ndarray, f
 def _unidentified_entry(u: Unidentified, where: str) -> dict[str, Any]:
     terms = sorted(u.correction.terms_.items(), key=lambda kv: -abs(kv[1]))
     names = ", ".join(name for name, _ in terms[:4])
-    evidence = (f"no catalog effect passed; {u.sensor} error lives in {where}; a sparse correction over "
-                f"[{names}] cuts its held-out error by {_pct(u.correction.holdout_gain_)}")
+    if u.applied:
+        evidence = (f"no catalog effect passed; {u.sensor} error lives in {where}; a sparse correction over "
+                    f"[{names}] cuts its held-out error by {_pct(u.correction.holdout_gain_)}")
+    else:
+        evidence = (f"no catalog effect passed; {u.sensor} error lives in {where} and is beyond sensor noise and "
+                    "parameter uncertainty (discovery test), but no term of the correction library describes it "
+                    f"(the best sparse correction cuts {_pct(max(u.correction.holdout_gain_, 0.0))}); no correction "
+                    "is applied")
+        terms = []
     return {"id": "unidentified", "parameters": {"sensor": u.sensor, **{k: round(v, 6) for k, v in terms}},
             "evidence": evidence}
 
@@ -251,9 +258,10 @@ def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dic
     cli = ";".join(f"{k}:" + ",".join(f"{p}={v:.6g}" for p, v in vals.items()) for k, vals in effects.items())
     config: dict[str, Any] = {"schema": MODEL_SCHEMA, "parameters": final.parameters.to_dict(), "effects": effects,
                               "effects_cli": cli}
-    if unidentified:
+    applied = [u for u in unidentified if u.applied]
+    if applied:
         discrepancy = Discrepancy(tuple(SensorCorrection(u.sensor, dict(u.correction.terms_), u.correction.settings_)
-                                        for u in unidentified))
+                                        for u in applied))
         config["corrections"] = discrepancy.to_config()
     return config
 
