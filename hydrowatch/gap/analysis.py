@@ -18,8 +18,10 @@ from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
 from hydrowatch.gap.calibrate import CALIBRATED, OutputErrorFit, calibrate
 from hydrowatch.gap.candidates import select_candidates, untestable
 from hydrowatch.gap.correction import SparseCorrection, build_library
-from hydrowatch.gap.diagnose import WHITE_LIMIT, Diagnosis, diagnose, residual_is_white
-from hydrowatch.gap.locate import noise_std, whiteness
+from hydrowatch.gap.diagnose import Diagnosis, diagnose
+from hydrowatch.gap.discovery import residual_test
+from hydrowatch.gap.identify import identify
+from hydrowatch.gap.locate import noise_std
 from hydrowatch.gap.relations import STRUCTURE, RelationCheck, check_relations
 from hydrowatch.gap.report import build_report, model_config
 from hydrowatch.gap.second_opinion import SecondOpinion, second_opinion
@@ -40,12 +42,17 @@ class Unidentified:
     correction : SparseCorrection
         Fitted on the residual of the final catalog model.
     prediction : ndarray, shape (n,)
-        Corrected simulation of the sensor.
+        Corrected simulation of the sensor (the final model's when the correction is not applied).
+    applied : bool
+        Whether the correction cuts the held-out error by >= 10 % and so travels with the saved
+        model; an error beyond the discovery test that no catalog effect and no library term
+        describes is still reported (it is there), without a correction.
     """
 
     sensor: str
     correction: SparseCorrection
     prediction: np.ndarray
+    applied: bool = True
 
 
 class GapAnalyser:
@@ -99,15 +106,20 @@ class GapAnalyser:
         base_effects = resolve_effects(self.effects)
         nominal_prediction = simulate_sensors(aligned, [nominal], [base_effects])[0]
         calibrated = calibrate(aligned, nominal, effects=base_effects)
-        white = residual_is_white(aligned, calibrated.prediction)
-        event(log, "calibrated", white=white, cost=calibrated.fit_cost)
-        if white:
+        identifiability, calibrated = identify(aligned, calibrated)
+        test = residual_test(aligned, calibrated.prediction, len(identifiability.determined))
+        event(log, "calibrated", beyond=test.beyond, cost=calibrated.fit_cost,
+              undetermined=sorted(identifiability.undetermined))
+        if not test.fails:
             diagnosis = Diagnosis(calibrated, unrevealable=untestable(pool, aligned, calibrated.prediction[1]))
         else:
             diagnosis = diagnose(aligned, calibrated, pool, max_effects=self.max_effects, origins=[nominal])
+        n_final = len(identifiability.determined) + len(diagnosis.final.space.effect_free)
+        final_test = residual_test(aligned, diagnosis.final.prediction, n_final) if diagnosis.accepted else test
         unidentified = []
-        if self.correct_unknown and not residual_is_white(aligned, diagnosis.final.prediction):
-            unidentified = _correct(aligned, diagnosis.final, nominal.omega_p)
+        if self.correct_unknown and final_test.fails:
+            unidentified = _correct(aligned, diagnosis.final, nominal.omega_p, final_test.beyond,
+                                    report_all=not diagnosis.accepted)
         self.aligned_ = aligned
         self.nominal_prediction_ = nominal_prediction
         self.calibrated_ = calibrated
@@ -115,9 +127,13 @@ class GapAnalyser:
         self.unidentified_ = unidentified
         self.after_prediction_ = _after(diagnosis.final.prediction, unidentified)
         self.relations_ = _relations(aligned, calibrated, diagnosis.final)
-        self.second_opinions_ = [] if white else _second_opinions(aligned, calibrated, diagnosis, nominal.omega_p)
+        self.identifiability_ = identifiability
+        self.tests_ = {"calibrated": test, "final": final_test}
+        self.second_opinions_ = [] if not test.fails else _second_opinions(aligned, calibrated, diagnosis,
+                                                                           nominal.omega_p)
         self.report_ = build_report(aligned, nominal, nominal_prediction, calibrated, diagnosis, unidentified,
-                                    self.after_prediction_, self.relations_, self.second_opinions_)
+                                    self.after_prediction_, self.relations_, self.second_opinions_,
+                                    identifiability, self.tests_)
         self.model_ = model_config(diagnosis.final, unidentified)
         return self
 
@@ -134,19 +150,23 @@ def analyse_gap(recording: Recording, nominal: PlantParameters | None = None, **
     return GapAnalyser(nominal=nominal, **kwargs).fit(recording).report
 
 
-def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float) -> list[Unidentified]:
-    """Sparse corrections of the sensors whose residual stays coloured and which they improve by >= 10 %."""
+def _correct(aligned: AlignedRecording, final: OutputErrorFit, pump_speed: float, sensors: tuple[str, ...],
+             report_all: bool) -> list[Unidentified]:
+    """Sparse corrections of ``sensors`` (those whose error the final model leaves beyond noise and
+    parameter uncertainty, discovery.py) that cut their held-out error by >= 10 %; with
+    ``report_all`` (no catalog effect was accepted) every such sensor is reported, a correction that
+    cuts less being left unapplied. After catalog effects, a remainder without a correction that
+    helps is not reported (an effect model a little off is not missing physics)."""
     library = build_library(aligned.voltage, final.prediction, aligned.t, pump_speed=pump_speed)
     residual = aligned.measured - final.prediction
     out = []
-    for i, sensor in enumerate(SENSORS):
-        if whiteness(residual[i, aligned.holdout_mask]) < WHITE_LIMIT:
-            continue
+    for sensor in sensors:
+        i = SENSORS.index(sensor)
         corr = SparseCorrection().fit(library, residual[i], aligned.fit_mask, aligned.holdout_mask)
-        noise = noise_std(residual[i, aligned.used_mask])
-        rms = float(np.sqrt(np.mean(residual[i, aligned.holdout_mask] ** 2)))
-        if corr.holdout_gain_ >= 0.1 and rms > 1.2 * noise:
+        if corr.holdout_gain_ >= 0.1:
             out.append(Unidentified(sensor, corr, final.prediction[i] + corr.predict(library)))
+        elif report_all:
+            out.append(Unidentified(sensor, corr, final.prediction[i], applied=False))
     return out
 
 

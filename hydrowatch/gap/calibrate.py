@@ -18,6 +18,7 @@ from scipy import signal
 from scipy.optimize import least_squares
 
 from hydrowatch.gap.align import AlignedRecording, simulate_sensors
+from hydrowatch.gap.locate import noise_std
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.effects import EFFECTS
 from hydrowatch.plant.parameters import PlantParameters
@@ -25,12 +26,21 @@ from hydrowatch.recording import SAMPLE_RATE_HZ
 
 log = get_logger(__name__)
 
-CALIBRATED: tuple[str, ...] = ("Kq", "TL", "BL", "JL", "Ctm", "beta_e", "omega_v", "Cp", "Pc")
-"""Identifiable plant parameters refitted before any effect is blamed (flow gain, load, leakage,
-stiffness, spool bandwidth, pump leakage, relief setting)."""
+CALIBRATED: tuple[str, ...] = ("Kq", "TL", "BL", "JL", "Ctm", "beta_e", "omega_v", "Cp", "Pc", "Dp", "Dm", "Kr",
+                                "Vs", "Vt", "Cvl", "zeta_v", "Jm", "Bm")
+"""Plant parameters a unit's calibration estimates before any effect is blamed: every coefficient
+of plant-model.md's table that differs between units (not the gearbox ratio N, the pump shaft speed
+ωp, the command scale u_max, the coil gain Kc that only multiplies Kq, the brake's smoothing speed
+ωs, the gearbox efficiency η, nor the fault parameters Cvx and Cpl). Which of them (or which
+combinations) a recording determines is decided from its Fisher information (identify.py)."""
 
-STATIC: tuple[str, ...] = ("Kq", "TL", "BL", "Ctm", "Cp", "Pc")
+STATIC: tuple[str, ...] = ("Kq", "TL", "BL", "Ctm", "Cp", "Pc", "Dp", "Dm")
 """Parameters that set the slow (below a few Hz) response; fitted first on low-passed errors."""
+
+PRIOR_SD = math.log(1.5)
+"""Standard deviation of the design-value prior on each calibrated parameter's log (a unit is
+within a factor 1.5 of its design values at one σ). It only holds what the recording does not
+determine (Cp against Cvl: both are leaks supply → tank) near the design value."""
 
 SLOW_BAND_HZ = 2.0
 """Corner of the zero-phase low-pass applied to the errors in the first calibration stage, Hz."""
@@ -56,12 +66,28 @@ class ModelSpace:
         Plant parameters to estimate; coordinate = ln(value / base value).
     effect_free : tuple of (str, str)
         ``(effect id, parameter)`` pairs to estimate; coordinate = value / catalog default.
+    prior : PlantParameters, optional
+        Design values: each free plant parameter then adds the residual
+        ``prior_weight · ln(value / design value) / PRIOR_SD`` to the cost (a Gaussian prior on its
+        log, MAP estimation). None: plain least squares.
+    prior_weight : float
+        The noise level in normalised units (the RMS noise ceiling) that puts the prior on the
+        scale of the normalised errors, dimensionless.
     """
 
     base: PlantParameters
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     plant_free: tuple[str, ...] = CALIBRATED
     effect_free: tuple[tuple[str, str], ...] = ()
+    prior: PlantParameters | None = None
+    prior_weight: float = 0.0
+
+    def prior_residuals(self, z: np.ndarray) -> np.ndarray:
+        """The prior's residuals at coordinates ``z``, shape (len(plant_free),) or (0,) without a prior."""
+        if self.prior is None:
+            return np.zeros(0)
+        offset = np.array([math.log(getattr(self.base, n) / getattr(self.prior, n)) for n in self.plant_free])
+        return self.prior_weight * (z[: len(self.plant_free)] + offset) / PRIOR_SD
 
     @property
     def names(self) -> list[str]:
@@ -119,6 +145,8 @@ class OutputErrorFit:
         Estimated physical value of each free coordinate.
     ci95 : dict of str to (float, float)
         95 % confidence interval of each value (Gauss–Newton covariance, inflated for correlated residuals).
+    covariance : ndarray, shape (P, P)
+        That covariance of the scaled coordinates (with the prior's information when the space has one).
     prediction : ndarray, shape (3, n)
         Simulated sensors of the estimated model.
     fit_cost : float
@@ -133,6 +161,7 @@ class OutputErrorFit:
     effects: dict[str, dict[str, float]]
     values: dict[str, float]
     ci95: dict[str, tuple[float, float]]
+    covariance: np.ndarray
     prediction: np.ndarray
     fit_cost: float
     n_fit: int
@@ -168,7 +197,8 @@ class _Objective:
         return [found[z.tobytes()] for z in points]
 
     def fun(self, z: np.ndarray) -> np.ndarray:
-        return self._residuals(self.simulate([np.array(z, dtype=float)])[0])
+        z = np.array(z, dtype=float)
+        return np.concatenate([self._residuals(self.simulate([z])[0]), self.space.prior_residuals(z)])
 
     def jac(self, z: np.ndarray) -> np.ndarray:
         z = np.array(z, dtype=float)
@@ -182,8 +212,9 @@ class _Objective:
             steps.append(h)
             points.append(zi)
         preds = self.simulate(points)
-        r0 = self._residuals(preds[0])
-        return np.column_stack([(self._residuals(p) - r0) / h for p, h in zip(preds[1:], steps)])
+        r0 = np.concatenate([self._residuals(preds[0]), self.space.prior_residuals(z)])
+        return np.column_stack([(np.concatenate([self._residuals(p), self.space.prior_residuals(zi)]) - r0) / h
+                                for p, h, zi in zip(preds[1:], steps, points[1:])])
 
 
 def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
@@ -233,21 +264,36 @@ def fit_output_error(
     prediction = objective.simulate([z])[0]
     params, effects = space.model(z)
     values = space.values(z)
-    ci95 = _intervals(space, z, r, jac, aligned.measured.shape[0])
-    event(log, "output-error fit", parameters=len(z), simulations=objective.n_sim, cost=float(np.mean(r**2)))
+    n_prior = space.prior_residuals(z).size
+    data_r = r[: r.size - n_prior]
+    cov = _covariance(space, z, data_r, jac[: r.size - n_prior], aligned.measured.shape[0])
+    ci95 = intervals(space, z, cov)
+    event(log, "output-error fit", parameters=len(z), simulations=objective.n_sim, cost=float(np.mean(data_r**2)))
     n_fit = int(aligned.fit_mask.sum())
-    return OutputErrorFit(space, z, params, effects, values, ci95, prediction,
-                          float(np.sum(r**2) / n_fit), n_fit)
+    return OutputErrorFit(space, z, params, effects, values, ci95, cov, prediction,
+                          float(np.sum(data_r**2) / n_fit), n_fit)
 
 
-def _intervals(space: ModelSpace, z: np.ndarray, r: np.ndarray, jac: np.ndarray, n_sensors: int
-               ) -> dict[str, tuple[float, float]]:
-    """95 % intervals from s²·(JᵀJ)⁻¹, s² inflated by n/n_eff; mapped through each coordinate's transform."""
+def _covariance(space: ModelSpace, z: np.ndarray, data_r: np.ndarray, jac: np.ndarray, n_sensors: int
+                ) -> np.ndarray:
+    """Covariance of the coordinates: the inverse of the data's information JᵀJ/s² (J of the data rows,
+    s² their residual variance inflated by n/n_eff) plus the prior's, 1/PRIOR_SD² on each plant
+    coordinate when the space has a prior (whatever weight the fit gave the prior's rows)."""
+    if z.size == 0:
+        return np.zeros((0, 0))
+    dof = max(data_r.size - z.size, 1)
+    s2 = float(np.dot(data_r, data_r)) / dof / _effective_fraction(data_r, n_sensors)
+    information = jac.T @ jac / s2
+    if space.prior is not None:
+        k = len(space.plant_free)
+        information[np.arange(k), np.arange(k)] += 1.0 / PRIOR_SD**2
+    return np.linalg.pinv(information)
+
+
+def intervals(space: ModelSpace, z: np.ndarray, cov: np.ndarray) -> dict[str, tuple[float, float]]:
+    """95 % intervals from the coordinates' covariance, mapped through each coordinate's transform."""
     if z.size == 0:
         return {}
-    dof = max(r.size - z.size, 1)
-    s2 = float(np.dot(r, r)) / dof / _effective_fraction(r, n_sensors)
-    cov = s2 * np.linalg.pinv(jac.T @ jac)
     half = 1.96 * np.sqrt(np.maximum(np.diag(cov), 0.0))
     out: dict[str, tuple[float, float]] = {}
     lo_b, hi_b = space.bounds()
@@ -269,19 +315,73 @@ def _value(space: ModelSpace, i: int, coordinate: float) -> tuple[str, float]:
 
 
 def calibrate(aligned: AlignedRecording, nominal: PlantParameters, *, free: tuple[str, ...] = CALIBRATED,
-              effects: Mapping[str, Mapping[str, float]] | None = None, max_nfev: int = 15) -> OutputErrorFit:
-    """Refit the nominal model's identifiable parameters (no effect blamed yet), in two stages.
+              effects: Mapping[str, Mapping[str, float]] | None = None, max_nfev: int = 15,
+              prior: bool = True, effect_free: tuple[tuple[str, str], ...] = ()) -> OutputErrorFit:
+    """Refit the nominal model's plant parameters (no effect blamed yet), in two stages.
 
     Stage 1 fits the STATIC parameters among ``free`` to errors low-passed at SLOW_BAND_HZ (the
     cost is then smooth in the dynamic parameters' absence); stage 2 fits all of ``free`` to the
-    full-band errors from there. See :func:`fit_output_error`.
+    full-band errors from there, for ``2 · max_nfev`` iterations at most (the 18 coordinates of a
+    unit need more than the old 9). With ``prior`` every free parameter carries the design-value
+    prior of :data:`PRIOR_SD` centred on ``nominal`` (MAP estimation), which holds the directions
+    the recording does not determine; the returned fit's covariance then says which it determines
+    (identify.py). ``effect_free``: effect parameters estimated with the plant in stage 2 (the
+    calibration under the hypothesis that those effects are present; stage 1 holds them at their
+    values in ``effects``). See :func:`fit_output_error`.
     """
     fixed = {k: dict(v) for k, v in (effects or {}).items()}
-    slow = tuple(n for n in free if n in STATIC)
-    start = nominal
+    design = nominal if prior else None
+    # Stage 1 leaves out the second of two parameters that act alike (Cvl beside Cp: both leak supply → tank).
+    slow = tuple(n for n in free if n in STATIC and not (n == "Cvl" and "Cp" in free))
+    start, prediction = _pump_start(aligned, nominal, fixed) if "Dp" in free else (
+        nominal, simulate_sensors(aligned, [nominal], [fixed])[0])
     if slow:
-        start = fit_output_error(aligned, ModelSpace(nominal, fixed, slow), max_nfev=max_nfev, band_hz=SLOW_BAND_HZ
-                                 ).parameters
-    stage2 = fit_output_error(aligned, ModelSpace(start, fixed, free), max_nfev=max_nfev)
-    # Report coordinates relative to the nominal values (the space's base is the starting model).
-    return stage2
+        stage1 = fit_output_error(aligned, ModelSpace(start, fixed, slow), max_nfev=max_nfev, band_hz=SLOW_BAND_HZ)
+        start, prediction = stage1.parameters, stage1.prediction
+    weight = prior_weight(aligned, prediction) if prior else 0.0
+    fit = fit_output_error(aligned, ModelSpace(start, fixed, free, effect_free, design, weight), max_nfev=2 * max_nfev)
+    k = fit.space.names.index("Dp") if "Dp" in free else -1
+    if k < 0 or math.sqrt(fit.covariance[k, k]) < PRIOR_SD / 2:
+        return fit
+    # The model's pump never limits (Dp not determined at the fit): it may sit on the flat side of a
+    # unit whose pump does. Start again with a pump that limits, keep the better fit.
+    smaller = fit.parameters.replace(Dp=fit.parameters.Dp * PUMP_RESTART)
+    event(log, "pump displacement restart", before=fit.parameters.Dp, start=smaller.Dp)
+    again = fit_output_error(aligned, ModelSpace(smaller, fit.effects, free, effect_free, design, weight),
+                             max_nfev=2 * max_nfev)
+    return again if again.fit_cost < fit.fit_cost else fit
+
+
+PUMP_SCAN = tuple(float(v) for v in np.linspace(0.6, 1.4, 9))
+"""Pump displacements tried before the fit, × the design value (one batched simulation)."""
+
+
+PUMP_RESTART = 0.75
+"""Factor on the fitted pump displacement from which the fit starts again when it left Dp undetermined."""
+
+
+def _pump_start(aligned: AlignedRecording, nominal: PlantParameters, effects: dict[str, dict[str, float]],
+                band_hz: float | None = SLOW_BAND_HZ) -> tuple[PlantParameters, np.ndarray]:
+    """The design values with the pump displacement of PUMP_SCAN that fits the low-passed errors best,
+    and its prediction.
+
+    The pump displacement sets the output only where the pump limits the flow: a model whose pump is
+    larger than the unit's never limits, its cost is flat in Dp there and a local fit stays put (a
+    unit 20 % smaller than its design stayed at +15 %). The scan starts the fit on the right side.
+    """
+    starts = [nominal.replace(Dp=nominal.Dp * k) for k in PUMP_SCAN]
+    preds = simulate_sensors(aligned, starts, [effects] * len(starts))
+    objective = _Objective(aligned, ModelSpace(nominal, effects, ()), band_hz)
+    costs = [float(np.sum(objective._residuals(p) ** 2)) for p in preds]
+    best = int(np.argmin(costs))
+    return starts[best], preds[best]
+
+
+def prior_weight(aligned: AlignedRecording, prediction: np.ndarray) -> float:
+    """RMS over the sensors of the noise ceiling (noise std / signal std) of a model's residual,
+    read from its 70–100 Hz band; an upper bound while the model is still off (plant response
+    left in the band), which makes the prior stronger than PRIOR_SD during the fit, never weaker."""
+    used = aligned.used_mask
+    ceilings = [noise_std(aligned.measured[i, used] - prediction[i, used]) / float(aligned.scale[i])
+                for i in range(aligned.measured.shape[0])]
+    return float(np.sqrt(np.mean(np.square(ceilings))))

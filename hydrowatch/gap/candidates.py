@@ -24,12 +24,17 @@ SCREEN_SECONDS = 14.0
 SLOW_EFFECTS = frozenset({"thermal_drift"})
 """Effects that grow over the record; they are screened on all of it."""
 
-DRIFT_SECONDS = 300.0
-"""Shortest record on which thermal drift is tried, s. Over a record much shorter than the warm-up
-time constant τ the oil warms almost linearly and the calibrated (constant) leakages absorb all but
-the trend's deviation from its mean: for a 33 K warm-up with τ = 255 s the calibrated held-out speed
-error was 1.08× the noise ceiling at 90 s, 1.38× the true model's at 180 s and 2.7× at 600 s. At
-300 s the benchmark named the drift first in 3 of 3 runs (τ 70–255 s; docs/gap.md)."""
+DRIFT_SECONDS = 60.0
+"""Shortest record on which thermal drift is tried, s. The warm-up time constant τ is estimated with
+the temperatures (from DRIFT_TAU_START), so a warm-up of τ = 20–60 s shows fully in a 120 s record. A
+warm-up much slower than the record is mostly absorbed by the calibrated (constant) leakages: for a
+33 K warm-up with τ = 255 s the calibrated held-out speed error was 1.08× the noise ceiling at 90 s,
+1.38× the true model's at 180 s and 2.7× at 600 s; the acceptance rules then reject the drift and the
+report states the length that would show it (issue 12 lowered this from 300 s, when τ was fixed at
+the catalog's 600 s and only the temperatures were fitted)."""
+
+DRIFT_TAU_START = 60.0
+"""Warm-up time constant the drift candidate starts from, s (estimated from there)."""
 
 DRIFT_RELIABLE_TAUS = 2.0
 """Record length, in warm-up time constants, for the drift model to cut the calibrated error by 30 %
@@ -120,8 +125,8 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate("transport_delay", ("tau",), _grid(0.001, 0.04, 8), ("omega_v",)),
     Candidate("entrained_air", ("alpha",), _grid(0.002, 0.15, 10), ("beta_e",)),
     Candidate("pump_ripple", ("a1", "a2"), _grid(0.01, 0.25, 5), sensors=("flow", "torque")),
-    Candidate("thermal_drift", ("T_end", "T_start"), tuple(np.linspace(20.0, 100.0, 6)), ("Ctm", "Cp"),
-              absent="T_start"),
+    Candidate("thermal_drift", ("T_end", "T_start", "tau"), tuple(np.linspace(20.0, 100.0, 6)), ("Ctm", "Cp"),
+              {"tau": DRIFT_TAU_START}, absent="T_start"),
     Candidate("gear_backlash", ("b",), _grid(0.002, 0.06, 6), ("JL",), sensors=_MECHANICAL),
     Candidate("shaft_compliance", ("G", "c"), _grid(100.0, 5000.0, 8), ("JL", "beta_e"), sensors=("torque",),
               absent=EFFECTS["shaft_compliance"].parameters["G"][4]),

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import CALIBRATED, ModelSpace, OutputErrorFit, _effective_fraction, fit_output_error
+from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, calibrate, fit_output_error
 from hydrowatch.gap.candidates import (
     SCREEN_SECONDS,
     SLOW_EFFECTS,
@@ -52,6 +52,7 @@ from hydrowatch.gap.candidates import (
     refit,
     untestable,
 )
+from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.locate import noise_std, whiteness
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -206,10 +207,28 @@ def _absorb(aligned: AlignedRecording, current: OutputErrorFit, trials: list[Tri
         return current
     best = max(absorbed, key=lambda t: t.gain).refit
     effects = {k: dict(v) for k, v in best.fit.effects.items() if k != best.candidate.id}
-    space = ModelSpace(best.fit.parameters, effects, current.space.plant_free, current.space.effect_free)
+    space = replace(current.space, base=best.fit.parameters, effects=effects)
     refitted = fit_output_error(aligned, space, max_nfev=POLISH_NFEV // 2)
     event(log, "absorbed", effect=best.candidate.label, before=current.fit_cost, after=refitted.fit_cost)
     return refitted if refitted.fit_cost < current.fit_cost else current
+
+
+def _recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
+                 nominal: PlantParameters | None) -> Refit:
+    """The full calibration (calibrate.py) under the hypothesis "current model + the screened effect":
+    from the design values, with the accepted effects and the candidate's screened values as the
+    effects' starting point, every plant parameter and every free effect parameter estimated.
+
+    Starting from the design values matters: the calibration without the effect may have bent
+    several parameters to mimic it (a dead time into a slow spool, a low brake torque and a high
+    viscous load), and a local refit from there stays in that valley.
+    """
+    c = screened.candidate
+    effects = {**{k: dict(v) for k, v in current.effects.items()}, c.id: dict(screened.fit.effects[c.id])}
+    effect_free = tuple((e, p) for e, p in current.space.effect_free if e != c.id) + tuple((c.id, p) for p in c.free)
+    fit = calibrate(aligned, nominal or current.space.prior or current.parameters, free=current.space.plant_free,
+                    effects=effects, prior=current.space.prior is not None, effect_free=effect_free)
+    return Refit(c, fit, holdout_cost(aligned, fit.prediction))
 
 
 def diagnose(
@@ -225,6 +244,7 @@ def diagnose(
     min_explained: float = 0.2,
     max_worse: float = 0.1,
     origins: Sequence[PlantParameters] = (),
+    nominal: PlantParameters | None = None,
 ) -> Diagnosis:
     """Add catalog effects greedily to the calibrated model while they pay (see module docstring).
 
@@ -250,12 +270,16 @@ def diagnose(
         Largest relative rise of any one sensor's held-out error the effect may cause.
     origins : sequence of PlantParameters, default ()
         Other starting plant parameters for the candidates' scans (the nominal ones).
+    nominal : PlantParameters, optional
+        The design values a confirmed candidate's calibration starts from (default: ``origins[0]``,
+        else the calibrated parameters).
     """
+    nominal = nominal or (origins[0] if origins else None)
     diagnosis = Diagnosis(calibrated, unrevealable=untestable(candidates, aligned, calibrated.prediction[1]))
     testable = [c for c in candidates if c.label not in diagnosis.unrevealable]
     current = calibrated
     while len(diagnosis.accepted) < max_effects:
-        if diagnosis.accepted and residual_is_white(aligned, current.prediction):
+        if diagnosis.accepted and not residual_test(aligned, current.prediction, len(current.z)).fails:
             break
         present = set(current.effects)
         pool = [c for c in testable if c.id not in present]
@@ -279,9 +303,7 @@ def diagnose(
         trials = []
         for rank, (screen_gain, s, data, base) in enumerate(screened):
             if rank < confirm and screen_gain > 0:
-                full = refit(aligned, replace(current, parameters=s.fit.parameters), s.candidate,
-                             plant_free=CALIBRATED, max_nfev=10, start_effect=s.fit.effects[s.candidate.id])
-                assert full is not None
+                full = _recalibrate(aligned, current, s, nominal)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic

@@ -3,12 +3,14 @@
 Report keys of the contract: ``mismatch``, ``effects``, ``located``, ``fit`` (held-out NRMSE of
 the nominal, calibrated and final model per sensor), ``calibrated_parameters``, ``summary``.
 Additions (docs/gap.md): ``noise`` (the noise ceiling as NRMSE), ``experiments`` (effects this
-recording cannot show and the run that would), ``trials`` (every candidate judged).
+recording cannot show and the run that would), ``trials`` (every candidate judged),
+``identifiability`` (which calibrated parameters the recording determines, identify.py) and
+``discovery_test`` (the test of discovery.py on the calibrated and the final model).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,7 +19,9 @@ import numpy as np
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit
 from hydrowatch.gap.diagnose import Diagnosis, Trial
+from hydrowatch.gap.discovery import ResidualTest
 from hydrowatch.gap.discrepancy import MODEL_SCHEMA, Discrepancy, SensorCorrection, load_model
+from hydrowatch.gap.identify import Identifiability
 from hydrowatch.gap.locate import noise_std, nrmse, regimes, strongest_regime
 from hydrowatch.gap.relations import RELATIONS, RelationCheck, describe
 from hydrowatch.plant.parameters import PlantParameters
@@ -94,27 +98,47 @@ def _effect_entry(aligned: AlignedRecording, trial: Trial, before: np.ndarray, f
 def _unidentified_entry(u: Unidentified, where: str) -> dict[str, Any]:
     terms = sorted(u.correction.terms_.items(), key=lambda kv: -abs(kv[1]))
     names = ", ".join(name for name, _ in terms[:4])
-    evidence = (f"no catalog effect passed; {u.sensor} error lives in {where}; a sparse correction over "
-                f"[{names}] cuts its held-out error by {_pct(u.correction.holdout_gain_)}")
+    if u.applied:
+        evidence = (f"no catalog effect passed; {u.sensor} error lives in {where}; a sparse correction over "
+                    f"[{names}] cuts its held-out error by {_pct(u.correction.holdout_gain_)}")
+    else:
+        evidence = (f"no catalog effect passed; {u.sensor} error lives in {where} and is beyond sensor noise and "
+                    "parameter uncertainty (discovery test), but no term of the correction library describes it "
+                    f"(the best sparse correction cuts {_pct(max(u.correction.holdout_gain_, 0.0))}); no correction "
+                    "is applied")
+        terms = []
     return {"id": "unidentified", "parameters": {"sensor": u.sensor, **{k: round(v, 6) for k, v in terms}},
             "evidence": evidence}
 
 
-def calibrated_table(nominal: PlantParameters, calibrated: OutputErrorFit) -> dict[str, Any]:
-    """``{name: {"value", "ci95", "nominal", "ratio"}}`` for every calibrated parameter (SI units)."""
+def calibrated_table(nominal: PlantParameters, calibrated: OutputErrorFit,
+                     determined: Sequence[str] | None = None) -> dict[str, Any]:
+    """``{name: {"value", "ci95", "nominal", "ratio", "determined"}}`` for every calibrated parameter
+    (SI units); ``determined`` says whether the recording determines it (identify.py; all when None)."""
     out = {}
     for name, value in calibrated.values.items():
         lo, hi = calibrated.ci95[name]
         ref = getattr(nominal, name)
         out[name] = {"value": float(value), "ci95": [float(lo), float(hi)], "nominal": ref,
-                     "ratio": round(float(value) / ref, 4)}
+                     "ratio": round(float(value) / ref, 4), "determined": determined is None or name in determined}
     return out
 
 
 def _parameter_changes(table: dict[str, Any]) -> str:
-    moved = [f"{n} ×{row['ratio']:.2f}" for n, row in table.items()
-             if abs(row["ratio"] - 1) > 0.05 and not (row["ci95"][0] <= row["nominal"] <= row["ci95"][1])]
+    moved = [f"{n} ×{row['ratio']:.2f}" for n, row in table.items() if row["determined"]
+             and abs(row["ratio"] - 1) > 0.05 and not (row["ci95"][0] <= row["nominal"] <= row["ci95"][1])]
     return ", ".join(moved) if moved else "none beyond 5 %"
+
+
+def _not_determined(identifiability: Identifiability | None) -> str:
+    """The summary's sentence on what the recording leaves open, with the experiments that would not."""
+    if identifiability is None or not identifiability.undetermined:
+        return ""
+    by_experiment: dict[str, list[str]] = {}
+    for name, row in identifiability.undetermined.items():
+        by_experiment.setdefault(str(row["experiment"]), []).append(name)
+    return ("Not determined by this recording (held near the design values): " + "; ".join(
+        f"{', '.join(names)}, which need {text}" for text, names in by_experiment.items()) + ".")
 
 
 def _fits(fit: dict[str, float]) -> str:
@@ -124,11 +148,14 @@ def _fits(fit: dict[str, float]) -> str:
 def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_prediction: np.ndarray,
                  calibrated: OutputErrorFit, diagnosis: Diagnosis, unidentified: list[Unidentified],
                  after_prediction: np.ndarray, relations: list[RelationCheck],
-                 opinions: Sequence[SecondOpinion] = ()) -> dict[str, Any]:
+                 opinions: Sequence[SecondOpinion] = (), identifiability: Identifiability | None = None,
+                 tests: Mapping[str, ResidualTest] | None = None) -> dict[str, Any]:
     """The report dict (module docstring), with a plain-language summary carrying the numbers.
 
     ``opinions``: the second opinion on the residual each accepted effect met (the calibrated one
     first; second_opinion.py); each named effect gets its ``second_opinion`` verdict.
+    ``identifiability`` (identify.py) and ``tests`` (discovery.py: ``calibrated`` and ``final``)
+    add the report's ``identifiability`` and ``discovery_test``.
     """
     noise = noise_ceiling(aligned, after_prediction)
     where = located(aligned, calibrated.prediction, noise, relations)
@@ -143,7 +170,7 @@ def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_pr
     effects += [_unidentified_entry(u, regime_of.get(u.sensor, "no single regime")) for u in unidentified]
     fit = {"nominal": fit_table(aligned, nominal_prediction), "calibrated": fit_table(aligned, calibrated.prediction),
            "after": fit_table(aligned, after_prediction)}
-    table = calibrated_table(nominal, calibrated)
+    table = calibrated_table(nominal, calibrated, None if identifiability is None else identifiability.determined)
     keys = ("gain", "gain_se", "consistency", "delta_bic", "explained", "worst_sensor", "improved", "distinct")
     trials = [[{"effect": t.refit.candidate.label, "gain": round(t.gain, 4), "gain_se": round(t.gain_se, 4),
                 "consistency": round(t.consistency, 2), "delta_bic": round(t.delta_bic, 1),
@@ -158,7 +185,12 @@ def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_pr
         "experiments": dict(diagnosis.unrevealable), "trials": trials,
         "second_opinion": opinions[0].as_dict() if opinions else None,
     }
-    report["summary"] = summary(report, _parameter_changes(table), describe(list(relations)))
+    if identifiability is not None:
+        report["identifiability"] = identifiability.as_dict()
+    if tests is not None:
+        report["discovery_test"] = {k: v.as_dict() for k, v in tests.items()}
+    report["summary"] = " ".join(p for p in (summary(report, _parameter_changes(table), describe(list(relations))),
+                                             _not_determined(identifiability)) if p)
     return report
 
 
@@ -226,9 +258,10 @@ def model_config(final: OutputErrorFit, unidentified: list[Unidentified]) -> dic
     cli = ";".join(f"{k}:" + ",".join(f"{p}={v:.6g}" for p, v in vals.items()) for k, vals in effects.items())
     config: dict[str, Any] = {"schema": MODEL_SCHEMA, "parameters": final.parameters.to_dict(), "effects": effects,
                               "effects_cli": cli}
-    if unidentified:
+    applied = [u for u in unidentified if u.applied]
+    if applied:
         discrepancy = Discrepancy(tuple(SensorCorrection(u.sensor, dict(u.correction.terms_), u.correction.settings_)
-                                        for u in unidentified))
+                                        for u in applied))
         config["corrections"] = discrepancy.to_config()
     return config
 
