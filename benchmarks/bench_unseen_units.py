@@ -48,11 +48,11 @@ from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
 from hydrowatch.condition.commission import WHOLE_FIT, CommissioningError, commission
-from hydrowatch.health.verdict import Verdict
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
 from hydrowatch.plant.population import later_day, random_unit
+from hydrowatch.verdict import Verdict
 
 CHANNELS = ("voltage", "flow", "speed", "torque", "temperature")
 W = 1000

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.errors import DataError
 from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
@@ -30,7 +31,7 @@ WIDTH = len(CHANNELS)
 """Channels of a window without the oil temperature (4); with it, the temperature is column WIDTH."""
 TEMPERATURE = "temperature"
 """Optional 5th channel of a window: oil temperature, °C (40 °C assumed when absent)."""
-LPM_TO_M3S = 1.0 / parity.M3S_TO_LPM
+LPM_TO_M3S = 1.0 / M3S_TO_LPM
 REFIT_GRID = 19
 """Coarse-grid points of the second valve search for fits that end on a search limit (:func:`parity_estimates`)."""
 REFIT_EXCESS = 1.1

@@ -40,14 +40,13 @@ import functools
 import numpy as np
 from numba import njit
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import supply
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import REFERENCE_TEMPERATURE_C
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
-M3S_TO_LPM = supply.M3S_TO_LPM
-"""m³/s → L/min."""
 VALVE_HYPOTHESES: tuple[str, ...] = ("pump_leak", "relief_spring", "valve_coil", "valve_leak")
 """Valve/supply-side faults, each fitted as a one-parameter hypothesis of the valve relation."""
 SEVERITY_LIMITS: dict[str, tuple[float, float]] = {

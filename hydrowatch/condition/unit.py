@@ -43,6 +43,7 @@ from typing import Any, cast
 import numpy as np
 from scipy.optimize import least_squares
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.condition.estimates import LPM_TO_M3S, check_windows, invalid_reasons
 from hydrowatch.errors import DataError
@@ -178,7 +179,7 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     def residual(p: PlantParameters) -> np.ndarray:
         pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
         y = parity.block_means(s.flow - p.N * p.Dm * s.speed) - p.Vt / (4.0 * p.beta_e) * parity.block_rates(pl)
-        return (y - p.Ctm * s.leak * parity.block_means(pl)) * parity.M3S_TO_LPM
+        return (y - p.Ctm * s.leak * parity.block_means(pl)) * M3S_TO_LPM
     return residual
 
 
@@ -240,7 +241,7 @@ def _valve_relation(s: _Signals) -> Relation:
     weight = float(np.sum(np.r_[0.5, np.ones(parity.BLOCK - 1), 0.5] ** 2)) / parity.BLOCK**2  # trapezoid block mean
     held = _held(s.voltage)
     flow = _noise(s.flow, held)
-    flow_noise = 0.0 if flow is None else flow * parity.M3S_TO_LPM * np.sqrt(weight)
+    flow_noise = 0.0 if flow is None else flow * M3S_TO_LPM * np.sqrt(weight)
     zero = np.zeros(s.flow.shape[0])
     step = 1e4  # Pa
     last: dict[str, Any] = {}
@@ -254,13 +255,13 @@ def _valve_relation(s: _Signals) -> Relation:
         return cast(tuple[np.ndarray, np.ndarray, np.ndarray], last["value"])
 
     def residual(p: PlantParameters) -> np.ndarray:
-        return parity.block_means((s.flow - predicted(p)[2]) * parity.M3S_TO_LPM)
+        return parity.block_means((s.flow - predicted(p)[2]) * M3S_TO_LPM)
 
     def spread(p: PlantParameters) -> np.ndarray:
         pl, spool, q = predicted(p)
         slope = (parity.valve_flow_prediction(spool, pl + step, p, None, zero, s.leak) - q) / step
         pl_noise = (_noise(pl, held) or 0.0) * np.sqrt(weight)
-        return np.sqrt(flow_noise**2 + (parity.block_means(slope) * parity.M3S_TO_LPM * pl_noise) ** 2)
+        return np.sqrt(flow_noise**2 + (parity.block_means(slope) * M3S_TO_LPM * pl_noise) ** 2)
 
     return residual, (None if flow is None else spread)
 

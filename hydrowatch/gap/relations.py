@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.gap.locate import Regime, regimes, strongest_regime
 from hydrowatch.plant.parameters import PlantParameters
@@ -122,7 +123,7 @@ def relation_residuals(voltage: np.ndarray, sensors: np.ndarray, p: PlantParamet
     dict of str to ndarray, shape ((n − 1) // parity.BLOCK,)
         ``load`` [N·m], ``motor`` and ``valve`` [L/min].
     """
-    flow = sensors[0][None, :] / parity.M3S_TO_LPM
+    flow = sensors[0][None, :] / M3S_TO_LPM
     speed, torque = sensors[1][None, :], sensors[2][None, :]
     blocks = mask[: -1 : parity.BLOCK][: (sensors.shape[1] - 1) // parity.BLOCK]
     pl = parity.load_pressure(speed, torque, p)
@@ -136,7 +137,7 @@ def relation_residuals(voltage: np.ndarray, sensors: np.ndarray, p: PlantParamet
     spool = parity.spool_position(voltage[None, :], p)
     predicted = parity.valve_flow_prediction(spool, pl, p, None, np.zeros(1))
     valve = _least_squares_residual(parity.block_means(flow)[0], [parity.block_means(predicted)[0]], blocks)
-    return {"load": load, "motor": motor * parity.M3S_TO_LPM, "valve": valve * parity.M3S_TO_LPM}
+    return {"load": load, "motor": motor * M3S_TO_LPM, "valve": valve * M3S_TO_LPM}
 
 
 def check_relations(voltage: np.ndarray, measured: np.ndarray, nominal: Mapping[str, np.ndarray],
