@@ -253,14 +253,16 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     seconds = float(ok.sum()) * min(features.hop, features.window) / SAMPLE_RATE_HZ
     check_excitation(w[ok], seconds)
     unit, supply, split = identify_for_commissioning(features, w[ok])
-    _check_fault_free(features, unit)
+    present = _fault_present(features, unit)
+    if present:
+        raise CommissioningError(present)
     moved = _moved(model, unit, w[ok], supply)
     healthy, verdicts = _self_check(moved, w[ok])
     if healthy < MIN_HEALTHY and supply != "identified":
         # The trained unit's supply does not fit this one (its own healthy windows read a pump-side fault): the whole
         # recording's fit, though its halves disagree, is kept if it reads the recording healthy (module docstring).
         whole = identify_unit(w[ok], features.nominal_, features.sensors, features.viscosity_coefficient)
-        if _fault_free(features, whole):
+        if _fault_present(features, whole) is None:
             other = _moved(model, whole, w[ok], WHOLE_FIT)
             share, other_verdicts = _self_check(other, w[ok])
             if share >= MIN_HEALTHY:
@@ -278,21 +280,15 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     return Commissioning(moved, unit, seconds, healthy, supply, split)
 
 
-def _fault_free(features: ConditionFeatures, unit: UnitFit) -> bool:
-    """Whether no identified parameter reads as a trained fault (:data:`FAULT_FRACTION`)."""
-    return all(severity <= FAULT_FRACTION * level_severity(fault, "warning", features.nominal_)
-               for fault, severity in implied_severities(features.nominal_, unit.parameters).items())
-
-
-def _check_fault_free(features: ConditionFeatures, unit: UnitFit) -> None:
-    """Raise :class:`CommissioningError` naming the first trained fault an identified parameter reads as."""
+def _fault_present(features: ConditionFeatures, unit: UnitFit) -> str | None:
+    """The refusal message when an identified parameter reads as a trained fault (:data:`FAULT_FRACTION`), else None."""
     for fault, severity in implied_severities(features.nominal_, unit.parameters).items():
         warning = level_severity(fault, "warning", features.nominal_)
         if severity > FAULT_FRACTION * warning:
-            raise CommissioningError(f"the healthy recording looks like a {fault} fault already present: its "
-                                     f"parameters mean severity {severity:.2f} (warning {warning:.2f}) against "
-                                     "the trained unit. Repair the unit, or commission on a recording from when "
-                                     "it was healthy.")
+            return (f"the healthy recording looks like a {fault} fault already present: its parameters mean severity "
+                    f"{severity:.2f} (warning {warning:.2f}) against the trained unit. Repair the unit, or commission "
+                    "on a recording from when it was healthy.")
+    return None
 
 
 def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str) -> ConditionModel:
