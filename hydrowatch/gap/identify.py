@@ -39,26 +39,21 @@ information (the central differences' error along an exact symmetry is of that o
 _STEP = 1e-2
 """Central-difference step on ln(value)."""
 
-EXPERIMENTS: dict[str, str] = {
-    "Cp": "a flow meter on the pump outlet or case drain: the sensors see pump and valve leakage only as "
-          "their sum (both leak supply → tank at the supply pressure)",
-    "Cvl": "a flow meter on the pump outlet or case drain: the sensors see pump and valve leakage only as "
-           "their sum (both leak supply → tank at the supply pressure)",
-    "beta_e": "a supply- or load-pressure channel, or a known chamber volume: the sensors see the bulk "
-              "modulus only through βe/Vs and βe/Vt",
-    "Vs": "a supply-pressure channel, or a known bulk modulus: the sensors see the supply volume only through βe/Vs",
-    "Vt": "a load-pressure channel, or a known bulk modulus: the sensors see the chamber volume only through βe/Vt",
-    "Dp": "a run that holds the command above the pump limit (|u| ≳ 3.5 V) for several seconds, or a "
-          "supply-pressure channel",
-    "Kr": "a supply-pressure channel, or a run that holds the command near zero (relief fully open)",
-    "Pc": "a supply-pressure channel, or a run that holds the command near zero (relief fully open)",
-    "Bm": "steady runs at several constant speeds: motor and load damping then split by the torque sensor",
-    "BL": "steady runs at several constant speeds: motor and load damping then split by the torque sensor",
-    "Jm": "fast command steps: motor and load inertia then split by the torque sensor",
-    "JL": "fast command steps: motor and load inertia then split by the torque sensor",
-    "omega_v": "a swept sine up to 100 Hz, or a spool-position channel",
-    "zeta_v": "a swept sine up to 100 Hz, or a spool-position channel",
+_SHARED_EXPERIMENTS: dict[tuple[str, ...], str] = {
+    ("Cp", "Cvl"): "a flow meter on the pump outlet or case drain: the sensors see pump and valve leakage only as "
+                   "their sum (both leak supply → tank at the supply pressure)",
+    ("beta_e",): "a supply- or load-pressure channel, or a known chamber volume: the sensors see the bulk "
+                 "modulus only through βe/Vs and βe/Vt",
+    ("Vs",): "a supply-pressure channel, or a known bulk modulus: the sensors see the supply volume only through βe/Vs",
+    ("Vt",): "a load-pressure channel, or a known bulk modulus: the sensors see the chamber volume only through βe/Vt",
+    ("Dp",): "a run that holds the command above the pump limit (|u| ≳ 3.5 V) for several seconds, or a "
+             "supply-pressure channel",
+    ("Kr", "Pc"): "a supply-pressure channel, or a run that holds the command near zero (relief fully open)",
+    ("Bm", "BL"): "steady runs at several constant speeds: motor and load damping then split by the torque sensor",
+    ("Jm", "JL"): "fast command steps: motor and load inertia then split by the torque sensor",
+    ("omega_v", "zeta_v"): "a swept sine up to 100 Hz, or a spool-position channel",
 }
+EXPERIMENTS: dict[str, str] = {name: text for names, text in _SHARED_EXPERIMENTS.items() for name in names}
 """The experiment that would determine each parameter a filtered-noise recording may leave open."""
 
 DEFAULT_EXPERIMENT = "a longer recording over more of the operating range (commands −4…4 V, above the pump limit)"
