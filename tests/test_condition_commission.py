@@ -111,13 +111,15 @@ def test_a_supply_that_fails_the_self_check_gives_way_to_the_whole_recordings_fi
     ("hold", "must move over at least"),
     ("load fault", "load fault already present"),
     ("motor leak", "motor_leak fault already present"),
+    ("pump leak alert", "pump_leak fault already present"),
 ])
 def test_commissioning_refuses_what_cannot_commission_a_unit(units, models, case: str, says: str) -> None:
     unit, _ = units[1]
     state, u = {"short": ("healthy", duty_cycle(200, (0.5, 3.5), seed=5)),
                 "hold": ("healthy", np.full(60_000, 2.0)),
                 "load fault": ("load_warning", duty_cycle(300, (0.5, 3.5), seed=5)),
-                "motor leak": ("motor_leak_warning", duty_cycle(300, (0.5, 3.5), seed=5))}[case]
+                "motor leak": ("motor_leak_warning", duty_cycle(300, (0.5, 3.5), seed=5)),
+                "pump leak alert": ("pump_leak_alert", duty_cycle(300, (0.5, 3.5), seed=5))}[case]
     with pytest.raises(CommissioningError, match=says):
         commission(models[0], windows((state,), unit, u, 5)[state])
 
