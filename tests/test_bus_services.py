@@ -178,3 +178,40 @@ def test_plant_declares_machine_tokens_only_when_asked() -> None:
             p.kill()
     assert sorted(tokens["tok"])[:2] == ["m000", "m001"] and len(tokens["tok"]) == 3
     assert len(tokens["plain"]) == 1 and tokens["plain"][0].startswith("plant.")
+
+
+@pytest.mark.slow
+def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path, monkeypatch) -> None:
+    # the trainer trains on the recorder's folder and registers; the scorer waits for that model, then scores
+    import threading
+
+    from hydrowatch.report.fleet_table import verdict_rows
+
+    monkeypatch.chdir(tmp_path)
+    port, rows, ready, done = free_port(), {}, threading.Event(), threading.Event()
+
+    def listen() -> None:
+        with open_session(BusSettings(mode="peer", connect=(f"tcp/127.0.0.1:{port}",))) as session, \
+                Subscriber(session, f"hydro/{FLEET}/*/health") as health:
+            ready.set()
+            while not done.is_set():
+                message = health.recv(timeout=0.5)
+                if message is not None:
+                    rows.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
+
+    listener = threading.Thread(target=listen, daemon=True)
+    listener.start()
+    assert ready.wait(30)
+    try:
+        code = main(["up", "--services", "plant,record,trainer,scorer", "--machines", "2", "--states",
+                     "healthy,load_warning", "--speed", "20", "--seconds", "110", "--bus-port", str(port),
+                     "--retrain", "30", "--fleet", FLEET, "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"])
+    finally:
+        done.set()
+        listener.join(timeout=10)
+    assert code == 0
+    assert sorted(rows) == ["m000", "m001"], "every machine gets verdicts"
+    for machine, truth in (("m000", "healthy"), ("m001", "load_warning")):
+        states = [row["state"] for row in rows[machine]]
+        assert len(states) >= 20 and states[-10:].count(truth) >= 9, (machine, states[-10:])
+    assert (tmp_path / "models" / "latest").is_dir()

@@ -1,7 +1,9 @@
 """``hydrowatch up``: start the services as local processes on one loopback bus; stop them together.
 
 The ``up`` process itself hosts the bus: a zenoh router on ``tcp/127.0.0.1:<port>`` that lives as
-long as the services, which join it as clients (the same layout as compose.yaml, on loopback).
+long as the services, which join it as clients (the same layout as compose.yaml, on loopback). The
+trainer is not on the bus: it trains on the recorder's folder every ``--retrain`` seconds and
+registers each model in MLflow; the scorer follows the registry alias, waiting for the first model.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ HELP = "start plant, recorder (and other services) as local processes on one loo
 KNOWN = ("plant", "record", "trainer", "scorer", "watch")
 MODULES = {"plant": "services.plant", "record": "services.recorder"}
 """Services started as ``python -m services.<name>`` (imports only what they need)."""
+FOLLOW_S = 5.0
+"""How often the scorer looks for a new registered version (and, before the first training, for any), s."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,6 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=None, help="stop everything after this many seconds")
     parser.add_argument("--bus-port", type=int, default=DEFAULT_PORT,
                         help=f"loopback rendezvous port of the bus (default {DEFAULT_PORT}; 0: any free port)")
+    parser.add_argument("--retrain", type=float, default=60.0,
+                        help="trainer: seconds between trainings on the recorder's folder (default 60)")
+    parser.add_argument("--models", type=Path, default=Path("models/latest"), help="trainer: bundle folder")
+    parser.add_argument("--tracking-uri", default=None,
+                        help="MLflow tracking URI shared by trainer and scorer (default as `hydrowatch train`)")
 
 
 def service_specs(args: argparse.Namespace, port: int) -> list[ServiceSpec]:
@@ -43,13 +52,20 @@ def service_specs(args: argparse.Namespace, port: int) -> list[ServiceSpec]:
     if unknown or not names:
         raise ParameterError(f"--services must be among {','.join(KNOWN)}. Got {args.services!r}.")
     bus = ("--connect", f"tcp/127.0.0.1:{port}")
+    tracking = () if args.tracking_uri is None else ("--tracking-uri", args.tracking_uri)
     per_service = {
         "plant": ("--fleet", args.fleet, "--machines", str(args.machines), "--states", args.states,
-                  "--speed", str(args.speed), "--seed", str(args.seed), "--wait-subscribers", "10"),
-        "record": ("--fleet", args.fleet, "--out", str(args.out)),
+                  "--speed", str(args.speed), "--seed", str(args.seed), "--wait-subscribers", "10", *bus),
+        # files closed every half retraining period, so that the trainer finds readable ones
+        "record": ("--fleet", args.fleet, "--out", str(args.out), *bus,
+                   *(("--rotate-s", str(max(args.retrain / 2.0, 10.0))) if "trainer" in names else ())),
+        # not on the bus: it reads the recorder's folder and registers in MLflow, which the scorer follows
+        "trainer": ("--data", str(args.out), "--out", str(args.models), "--every", str(args.retrain), *tracking),
+        "scorer": ("--fleet", args.fleet, "--follow-alias", str(FOLLOW_S), *tracking, *bus),
+        "watch": ("--fleet", args.fleet, *bus),
     }
     verbose = getattr(args, "verbose", 0)
-    return [ServiceSpec(name, name, per_service.get(name, ()) + bus, verbose, MODULES.get(name)) for name in names]
+    return [ServiceSpec(name, name, per_service[name], verbose, MODULES.get(name)) for name in names]
 
 
 def _up(args: argparse.Namespace, stop: threading.Event) -> int:

@@ -25,13 +25,14 @@ _log = get_logger(__name__)
 
 
 def recording_files(path: str | Path) -> list[Path]:
-    """The recording files at ``path``: the file itself, or every .mcap/.parquet/.csv in the folder (sorted)."""
+    """The recording files at ``path``: the file itself, or every .mcap/.parquet/.csv in the folder and its subfolders
+    (sorted; the recorder writes ``<out>/<fleet>/<machine>/*.mcap``)."""
     p = Path(path)
     if p.is_file():
         return [p]
     if not p.is_dir():
         raise DataError(f"--data must be a recording file or a folder of them. Got {str(p)!r}, which does not exist.")
-    files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix in SUFFIXES)
+    files = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix in SUFFIXES)
     if not files:
         raise DataError(f"folder must hold recordings ({', '.join(SUFFIXES)}). Got none.", str(p))
     return files

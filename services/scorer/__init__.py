@@ -10,7 +10,7 @@ closes. A chunk missing from a machine's stream is first asked for from the publ
 that stay, NaN, late or out-of-order chunks make the window in progress ``invalid`` with its reason.
 The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
 ``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
-when it moves. SIGINT/SIGTERM drains and exits.
+when it moves; an alias that does not exist yet is waited for. SIGINT/SIGTERM drains and exits.
 """
 
 from __future__ import annotations
@@ -152,9 +152,32 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
                         stagger=args.stagger, unit_model=units.unit_model())
 
 
+def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | None:
+    """The model to start with. A registry alias followed with ``--follow-alias`` that does not exist yet (a trainer
+    started beside the scorer has not registered its first model) is looked for again every ``--follow-alias``
+    seconds, logged once; None when ``stop`` comes first. Anything else that cannot be loaded raises."""
+    from hydrowatch.errors import DataError
+
+    waiting = args.follow_alias > 0 and str(args.model).startswith("models:/")
+    logged = False
+    while True:
+        try:
+            return _Model(args)
+        except DataError as exc:
+            if not waiting:
+                raise
+            if not logged:
+                event(log, "waiting for the model", logging.WARNING, model=args.model, reason=str(exc))
+                logged = True
+        if stop.wait(args.follow_alias):
+            return None
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Score until ``stop`` (or ``--seconds``); returns 0."""
-    model = _Model(args)
+    model = _first_model(args, stop)
+    if model is None:
+        return 0
     units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)
     freeze_heap()
