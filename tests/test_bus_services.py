@@ -215,3 +215,41 @@ def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path,
         states = [row["state"] for row in rows[machine]]
         assert len(states) >= 20 and states[-10:].count(truth) >= 9, (machine, states[-10:])
     assert (tmp_path / "models" / "latest").is_dir()
+
+
+@pytest.mark.slow
+def test_a_dead_recorder_shards_machines_are_taken_over_and_given_back(tmp_path: Path) -> None:
+    from hydrowatch.bus import machine_hash
+
+    port = free_port()
+    args = ("--fleet", FLEET, "--bus-port", port, "--flush", 0.2)
+    recorders = [start("services.recorder", "--out", tmp_path / f"s{i}", "--shard", f"{i}/2", *args) for i in range(2)]
+    plant = back = None
+    try:
+        wait_for(port, "record", count=2)
+        plant = start("services.plant", "--fleet", FLEET, "--machines", 6, "--seconds", 40, "--speed", 1,
+                      "--wait-subscribers", 30, "--bus-port", port)
+        wait_for(port, "plant")
+        began = time.monotonic()
+        time.sleep(8)
+        assert stop(recorders[1], signal.SIGKILL) == -signal.SIGKILL
+        killed = time.monotonic() - began
+        time.sleep(14)
+        back = start("services.recorder", "--out", tmp_path / "s1b", "--shard", "1/2", *args)
+        wait_for(port, "record", count=2)
+        returned = time.monotonic() - began
+        assert plant.wait(timeout=120) == 0
+        assert stop(recorders[0]) == 0 and stop(back) == 0
+    finally:
+        for proc in (*recorders, plant, back):
+            if proc is not None:
+                proc.kill()
+    first, dead, again = (read_machines(tmp_path / name / FLEET) for name in ("s0", "s1", "s1b"))
+    theirs = sorted(m for m in first if machine_hash(m) % 2 == 1)
+    assert theirs and sorted(dead) == theirs == sorted(again), "shard 1's machines: its own, then shard 0's, back"
+    for machine in theirs:
+        taken = first[machine][0]
+        # shard 0 began on them within 10 s of the kill (plant time ≈ wall time at speed 1, started before `began`)
+        assert taken[0] <= killed + 10.0 + 1.0, (machine, taken[0], killed)
+        assert taken[-1] <= returned + 10.0 + 1.0, (machine, taken[-1], returned)  # and gave them back
+        assert again[machine][0][0] <= taken[-1] + 1.0  # the returned shard picked them up where shard 0 left off

@@ -22,6 +22,7 @@ import zenoh
 from hydrowatch.bus.channel import WakingChannel
 from hydrowatch.bus.keys import Key, parse_key
 from hydrowatch.bus.shard import Shard
+from hydrowatch.bus.takeover import ShardTakeover
 from hydrowatch.errors import DataError
 from hydrowatch.io.codec import Layout, check_payload, encode_batch
 from hydrowatch.io.mcap_io import TOPIC_KINDS
@@ -210,8 +211,9 @@ class Subscriber:
     schema : pyarrow.Schema or None
         Expected schema (from :mod:`hydrowatch.schemas`); others are counted as undecodable.
         None: the schema of each key's topic (``sensors`` → ``sensor_chunk``, ...).
-    shard : Shard
-        Only machines of this shard are kept; the others are counted in ``outside_shard``.
+    shard : Shard or ShardTakeover
+        Only machines of this shard are kept (asked per message: a :class:`ShardTakeover`'s machines change
+        when shards come and go); the others are counted in ``outside_shard``.
     capacity : int
         Messages each key expression's channel holds before the zenoh thread waits.
     """
@@ -222,11 +224,11 @@ class Subscriber:
         key_exprs: str | Sequence[str],
         schema: pa.Schema | None = None,
         *,
-        shard: Shard | None = None,
+        shard: Shard | ShardTakeover | None = None,
         capacity: int = 100_000,
     ) -> None:
         self.schema = schema
-        self.shard = shard or Shard()
+        self.shard: Shard | ShardTakeover = shard or Shard()
         self.key_exprs = [key_exprs] if isinstance(key_exprs, str) else list(key_exprs)
         self.received = 0
         self.outside_shard = 0

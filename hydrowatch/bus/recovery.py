@@ -36,6 +36,8 @@ import zenoh
 
 from hydrowatch.bus.keys import parse_key
 from hydrowatch.bus.pubsub import Message, publish_time
+from hydrowatch.bus.shard import Shard
+from hydrowatch.bus.takeover import ShardTakeover
 from hydrowatch.errors import DataError
 from hydrowatch.io.codec import check_payload
 from hydrowatch.log import event, get_logger
@@ -81,6 +83,10 @@ class GapRecovery:
     session : zenoh.Session
     timeout : float
         Seconds to wait for a history query's replies.
+    shard : Shard or ShardTakeover or None
+        The machines asked about unprompted (tails of quiet or stalled machines): only those the shard handles
+        now. A machine given back to its returning shard stops sending here, and must not be fetched from the
+        publisher's history as if stalled.
 
     Attributes
     ----------
@@ -95,6 +101,7 @@ class GapRecovery:
 
     session: zenoh.Session
     timeout: float = TIMEOUT_S
+    shard: Shard | ShardTakeover | None = None
     gaps: int = 0
     samples_missing: int = 0
     chunks_recovered: int = 0
@@ -172,6 +179,8 @@ class GapRecovery:
         when the bus is quiet); a key is asked once per place in its stream."""
         asking = {r.key for r in self._pending if r.kind == "tail"}
         for key in self._next if keys is None else keys:
+            if self.shard is not None and not self.shard.includes(key.split("/")[2]):
+                continue
             expected = self._next[key][0]
             if key not in asking and self._tail_asked.get(key) != expected:
                 self._tail_asked[key] = expected

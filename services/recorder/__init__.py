@@ -22,6 +22,7 @@ from hydrowatch.bus import Shard, StatusReporter, Subscriber, add_bus_arguments,
 from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
+from hydrowatch.bus.takeover import release, sharded
 from hydrowatch.errors import ParameterError
 from hydrowatch.log import event, get_logger
 from services.recorder.files import RecordingFiles
@@ -74,8 +75,9 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     fleet = args.fleet if args.fleet != "*" else "all"
     with open_session(settings_from_args(args)) as session:
-        subscriber = Subscriber(session, keys, shard=args.shard)
-        recovery = None if args.no_recovery else GapRecovery(session)
+        shard = sharded(session, args.fleet, NAME, args.shard)
+        subscriber = Subscriber(session, keys, shard=shard)
+        recovery = None if args.no_recovery else GapRecovery(session, shard=shard)
         reporter = StatusReporter(session, fleet, NAME, lambda: {
             "messages_in": subscriber.received, "messages_out": files.messages,
             "messages_undecodable": subscriber.undecodable_total,
@@ -121,6 +123,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                 files.write_many(recovery.wait())
         finally:
             subscriber.close()
+            release(shard)
             files.close()
             reporter.stop()
     gaps = {} if recovery is None else {"gaps": recovery.gaps, "chunks_recovered": recovery.chunks_recovered,

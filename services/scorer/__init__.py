@@ -36,6 +36,7 @@ from hydrowatch.bus import (
 from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import freeze_heap, service_main
 from hydrowatch.bus.session import settings_from_args
+from hydrowatch.bus.takeover import release, sharded
 from hydrowatch.log import event, get_logger
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
@@ -184,8 +185,9 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     counters = {"verdicts": 0}
     with open_session(settings_from_args(args)) as session:
-        subscriber = Subscriber(session, key_expr(args.fleet, "*", "sensors"), shard=args.shard)
-        recovery = None if args.no_recovery else GapRecovery(session)
+        shard = sharded(session, args.fleet, NAME, args.shard)
+        subscriber = Subscriber(session, key_expr(args.fleet, "*", "sensors"), shard=shard)
+        recovery = None if args.no_recovery else GapRecovery(session, shard=shard)
         publisher = Publisher(session)
         reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {
             "messages_in": subscriber.received, "messages_out": publisher.messages_out,
@@ -206,6 +208,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             _publish(publisher, units, scorer.update(rest))
         finally:
             subscriber.close()
+            release(shard)
             reporter.stop()
             publisher.close()
     if subscriber.undecodable_total:
