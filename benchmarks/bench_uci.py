@@ -32,8 +32,8 @@ from sklearn.ensemble import RandomForestClassifier
 from sklearn.metrics import accuracy_score, f1_score
 
 from hydrowatch.cycles import ComponentClassifier, cycle_statistics, ordered_split, random_folds
-from hydrowatch.io.wide import Cycles, read_cycles
-from hydrowatch.rig import builtin_rig, data_root
+from hydrowatch.io.wide import Cycles, shared_cycles
+from hydrowatch.rig import data_root
 
 HYDRAULIC = ("PS1", "PS2", "PS3", "PS4", "PS5", "PS6", "EPS1", "FS1", "FS2")
 """Channels whose transients are features: the pressures, motor power and flows, recorded at 10-100 Hz
@@ -87,12 +87,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--folds", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    folder = data_root() / "uci-hydraulic"
-    if not (folder / "profile.txt").is_file():
-        print(f"skipped: the UCI hydraulic data is not at {folder} (set HYDROWATCH_DATA)")
+    loaded = shared_cycles("uci-hydraulic")
+    if loaded is None:
+        print(f"skipped: the UCI hydraulic data is not at {data_root() / 'uci-hydraulic'} (set HYDROWATCH_DATA)")
         return 0
-    rig = builtin_rig("uci-hydraulic")
-    cycles = read_cycles(folder, rig)
+    rig, cycles = loaded
     reference = cycles.channels.index("PS1")
     fast = [cycles.channels.index(c) for c in HYDRAULIC]
     methods: dict[str, Fit] = {

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hydrowatch.errors import DataError
-from hydrowatch.io.wide import block_means, healthy_mask, read_cycles, read_matrix
-from hydrowatch.rig import RigDescription, builtin_rig, data_root, load_rig
+from hydrowatch.io.wide import block_means, healthy_mask, read_cycles, read_matrix, shared_cycles
+from hydrowatch.rig import RigDescription, data_root, load_rig
 
 RIG = """name = "tiny"
 [window]
@@ -134,13 +134,21 @@ def test_read_matrix_takes_the_first_row_as_width_and_ignores_trailing_blank_lin
 UCI = data_root() / "uci-hydraulic"
 
 
+def test_shared_cycles_are_none_when_the_data_folder_lacks_them(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setenv("HYDROWATCH_DATA", str(tmp_path))
+    assert shared_cycles("uci-hydraulic") is None
+
+
 @pytest.mark.skipif(
     not (UCI / "profile.txt").is_file(),
     reason=f"the UCI hydraulic data is not at {UCI} (set HYDROWATCH_DATA to the shared data folder)",
 )
 def test_the_real_uci_files_import_as_2205_cycles_of_17_channels() -> None:
-    rig = builtin_rig("uci-hydraulic")
-    cycles = read_cycles(UCI, rig)
+    loaded = shared_cycles("uci-hydraulic")
+    assert loaded is not None
+    rig, cycles = loaded
     assert cycles.values.shape == (2205, 17, 60) and np.isfinite(cycles.values).all()
     counts = {
         name: dict(zip(*np.unique(cycles.labels[name], return_counts=True), strict=True)) for name in rig.components

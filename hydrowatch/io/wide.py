@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrowatch.errors import DataError
-from hydrowatch.rig.description import Label, LabelValue, RigDescription
+from hydrowatch.rig.description import Label, LabelValue, RigDescription, builtin_rig, data_root
 
 
 @dataclass(frozen=True)
@@ -202,3 +202,15 @@ def healthy_mask(cycles: Cycles, rig: RigDescription) -> np.ndarray:
         healthy: LabelValue = rig.label(name).healthy
         mask &= cycles.labels[name] == healthy
     return mask
+
+
+def shared_cycles(name: str) -> tuple[RigDescription, Cycles] | None:
+    """A shipped rig's description and cycles from the shared data folder, or None when it is absent.
+
+    The data is read from ``data_root() / name`` (``$HYDROWATCH_DATA/<name>`` or ``../shared/data/<name>``);
+    "absent" means its label file (or, without one, the first channel's file) is not there.
+    """
+    rig = builtin_rig(name)
+    folder = data_root() / name
+    marker = rig.label_source or rig.sampling[rig.channels.names[0]].source
+    return (rig, read_cycles(folder, rig)) if (folder / marker).is_file() else None
