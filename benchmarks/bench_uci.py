@@ -35,9 +35,10 @@ from hydrowatch.cycles import ComponentClassifier, cycle_statistics, ordered_spl
 from hydrowatch.io.wide import Cycles, shared_cycles
 from hydrowatch.rig import data_root
 
-HYDRAULIC = ("PS1", "PS2", "PS3", "PS4", "PS5", "PS6", "EPS1", "FS1", "FS2")
-"""Channels whose transients are features: the pressures, motor power and flows, recorded at 10-100 Hz
-(the temperatures, vibration and virtual cooling sensors, recorded at 1 Hz, have no load-change dynamics)."""
+FAST_HZ = 10.0
+"""Channels recorded at this rate or faster have their transients as features: the pressures, motor
+power and flows (the temperatures, vibration and virtual cooling sensors, recorded at 1 Hz, have no
+load-change dynamics)."""
 
 Fit = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """(train cycles, train labels, train nuisance, test cycles) → predicted test labels."""
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     rig, cycles = loaded
     reference = cycles.channels.index("PS1")
-    fast = [cycles.channels.index(c) for c in HYDRAULIC]
+    fast = [cycles.channels.index(c) for c in rig.recorded_at_least(FAST_HZ)]
     methods: dict[str, Fit] = {
         "statistics+LDA": _Classifier("statistics", reference),
         "transients+LDA": _Classifier("transients", reference, fast),

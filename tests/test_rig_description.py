@@ -35,6 +35,9 @@ def test_the_uci_rig_declares_its_17_channels_window_and_four_components() -> No
     assert accumulator.values == (130.0, 115.0, 100.0, 90.0) and accumulator.healthy == 130.0
     assert accumulator.column == 3 and accumulator.names[90.0] == "close to total failure"
     assert rig.label("stable").component is False and rig.label_source == "profile.txt"
+    assert rig.sampling["PS1"].original_hz == 100.0 and rig.sampling["FS1"].original_hz == 10.0
+    assert rig.sampling["TS1"].recorded_hz is None and rig.sampling["TS1"].original_hz == 1.0
+    assert rig.recorded_at_least(10.0) == ("PS1", "PS2", "PS3", "PS4", "PS5", "PS6", "EPS1", "FS1", "FS2")
     assert BUILTIN == ("uci-hydraulic",)
 
 
@@ -77,6 +80,7 @@ def _set(data: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
         ("channels.PS1.role", "label", "'channels.PS1.role' must be one of"),
         ("channels.PS1.unit", 3, "'channels.PS1.unit' must be a string"),
         ("channels.PS1.scale", 0, "'channels.PS1.scale' must be non-zero"),
+        ("channels.PS1.recorded_hz", 0.5, "'channels.PS1.recorded_hz' must be at least rate_hz = 1.0"),
         ("channels.PS1.rate", 100, "'channels.PS1.rate' is not a known key"),
         ("labels.cooler.healthy", 50, r"'labels.cooler.healthy' must be one of the values \[3, 20, 100\]"),
         ("labels.cooler.values", [3, 3], "'labels.cooler.values' must be a non-empty list of distinct values"),

@@ -105,6 +105,8 @@ class ComponentClassifier:
         self.directions_ = directions
         self.classes_ = np.unique(labels)
         self.transients_, self.projection_, self.model_ = self._fit_once(values, labels, nuisance, directions)
+        projected = self.model_.transform(self._transform(values, self.transients_, self.projection_))
+        self.centroids_ = np.stack([projected[labels == c].mean(axis=0) for c in self.classes_])
         return self
 
     def choose_directions(
@@ -146,3 +148,17 @@ class ComponentClassifier:
         """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes)."""
         x = self._features(values)
         return np.asarray(self.model_.predict_proba(x))
+
+    def distances(self, values: np.ndarray) -> np.ndarray:
+        """Distance of each cycle to each class's training centroid in the discriminant space.
+
+        LDA's discriminant coordinates whiten the pooled within-class covariance, so this is a
+        Mahalanobis distance in the at most ``n_classes - 1`` discriminant directions.
+
+        Returns
+        -------
+        ndarray, shape (n_cycles, n_classes)
+            In ``classes_`` order, dimensionless.
+        """
+        projected = self.model_.transform(self._features(values))
+        return np.asarray(np.linalg.norm(projected[:, None, :] - self.centroids_[None, :, :], axis=2))

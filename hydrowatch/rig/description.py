@@ -83,6 +83,9 @@ class Sampling:
         The channel's value is ``scale * raw + offset``.
     note : str
         Free text, e.g. how the stored values were derived from the original recording.
+    recorded_hz : float or None
+        Rate the sensor was recorded at, Hz, when the stored values were reduced from a faster
+        recording (the UCI copy's 1 s means of 100 Hz pressures); None: ``rate_hz``.
     """
 
     rate_hz: float
@@ -90,6 +93,12 @@ class Sampling:
     scale: float = 1.0
     offset: float = 0.0
     note: str = ""
+    recorded_hz: float | None = None
+
+    @property
+    def original_hz(self) -> float:
+        """Rate the sensor was recorded at, Hz (``recorded_hz``, else ``rate_hz``)."""
+        return self.rate_hz if self.recorded_hz is None else self.recorded_hz
 
 
 @dataclass(frozen=True)
@@ -142,6 +151,10 @@ class RigDescription:
     def components(self) -> tuple[str, ...]:
         """Names of the labels that are component conditions (flags excluded)."""
         return tuple(label.name for label in self.labels if label.component)
+
+    def recorded_at_least(self, hz: float) -> tuple[str, ...]:
+        """Channels recorded at ``hz`` or faster (before any reduction of the stored copy), in order."""
+        return tuple(name for name in self.channels.names if self.sampling[name].original_hz >= hz)
 
     def label(self, name: str) -> Label:
         """The label called ``name``."""
@@ -217,7 +230,7 @@ def _window(reader: _Reader) -> Window:
 
 
 def _channel(reader: _Reader, name: str, grid_hz: float) -> tuple[Channel, Sampling]:
-    reader.only(("unit", "role", "rate_hz", "source", "scale", "offset", "note", "optional"))
+    reader.only(("unit", "role", "rate_hz", "recorded_hz", "source", "scale", "offset", "note", "optional"))
     role = reader.choice("role", ROLES)
     rate = reader.number("rate_hz", positive=True)
     ratio = rate / grid_hz
@@ -230,7 +243,12 @@ def _channel(reader: _Reader, name: str, grid_hz: float) -> tuple[Channel, Sampl
         channel = Channel(name, reader.text("unit"), role, reader.get("optional", (bool,), "true or false", False))
     except ParameterError as e:
         raise DataError(f"table '{reader.key}': {e}", reader.source) from None
-    sampling = Sampling(rate, reader.text("source", name), scale, reader.number("offset", 0.0), reader.text("note", ""))
+    recorded = reader.number("recorded_hz", None, positive=True)
+    if recorded is not None and recorded < rate:
+        raise reader.fail("recorded_hz", f"at least rate_hz = {rate} (stored values come from the recording)", recorded)
+    sampling = Sampling(
+        rate, reader.text("source", name), scale, reader.number("offset", 0.0), reader.text("note", ""), recorded
+    )
     return channel, sampling
 
 
