@@ -135,3 +135,6 @@ def test_a_fixed_window_rig_with_scaling_and_string_labels_loads(tmp_path: Path)
     assert rig.label("state").column is None and rig.time_column == "time" and rig.label_source is None
     with pytest.raises(ParameterError, match="label must be one of"):
         rig.label("cooler")
+    path.write_text(path.read_text(encoding="utf-8").replace("hop_s = 1.0", "hop_s = 0.01"), encoding="utf-8")
+    with pytest.raises(DataError, match=r"'window.grid_hz' must be such that hop_s \* grid_hz is a whole number"):
+        load_rig(path)

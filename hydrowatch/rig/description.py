@@ -223,9 +223,10 @@ def _window(reader: _Reader) -> Window:
     if kind == "cycle" and hop != length:
         raise reader.fail("hop_s", f"the cycle length {length} for kind 'cycle' (or absent)", hop)
     grid = reader.number("grid_hz", positive=True)
-    samples = length * grid
-    if abs(samples - round(samples)) > 1e-9 * samples:
-        raise reader.fail("grid_hz", f"such that length_s * grid_hz is a whole number of samples ({length} s)", grid)
+    for key, seconds in (("length_s", length), ("hop_s", hop)):
+        samples = seconds * grid
+        if abs(samples - round(samples)) > 1e-9 * samples:
+            raise reader.fail("grid_hz", f"such that {key} * grid_hz is a whole number of samples ({seconds} s)", grid)
     return Window(kind, length, hop, grid)
 
 
