@@ -191,10 +191,12 @@ class _Reader:
 
     def number(self, name: str, default: Any = ..., positive: bool = False) -> Any:
         what = "a positive number" if positive else "a finite number"
-        value = self.get(name, (int, float), what, default)
-        if value is not None and value is not default and (not math.isfinite(value) or (positive and value <= 0)):
+        if name not in self.table and default is not ...:
+            return default
+        value = self.get(name, (int, float), what)
+        if not math.isfinite(value) or (positive and value <= 0):
             raise self.fail(name, what, value)
-        return None if value is None else float(value)
+        return float(value)
 
     def choice(self, name: str, options: tuple[str, ...], default: Any = ...) -> Any:
         value = self.text(name, default)
