@@ -130,6 +130,18 @@ def load_rig_text(folder: Path, text: str) -> RigDescription:
     return load_rig(path)
 
 
+def test_parquet_field_units_are_checked_and_aliases_accepted(press: RigDescription, tmp_path: Path) -> None:
+    columns = _table()
+    pressure = pa.array(columns.pop("P_psi [bar]"))
+    table = pa.table(columns).append_column(pa.field("P_psi", pa.float64(), metadata={"unit": "psi"}), pressure)
+    pq.write_table(table, tmp_path / "psi.parquet")
+    with pytest.raises(DataError, match=r"psi.parquet: column 'P_psi' must be in bar .* Got \[psi\]"):
+        read_windows(tmp_path / "psi.parquet", press)
+    columns = _table()
+    columns["T [degC]"] = [20.0] * len(columns["time"])  # an accepted spelling of °C
+    assert read_windows(_csv(tmp_path / "alias.csv", columns), press).channels == ("u", "p", "T")
+
+
 def test_the_plant_description_reads_the_plants_own_export(tmp_path: Path) -> None:
     n = 2600  # 13 s at 200 Hz: two 5 s windows
     t = np.arange(n) / 200.0

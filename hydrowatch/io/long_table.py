@@ -25,7 +25,7 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
 from hydrowatch.errors import DataError
-from hydrowatch.io.checks import check_time_base
+from hydrowatch.io.checks import UNIT_ALIASES, check_time_base
 from hydrowatch.io.tabular import as_float
 from hydrowatch.io.wide import Cycles, block_means
 from hydrowatch.rig.description import Label, RigDescription
@@ -50,28 +50,31 @@ class Windows(Cycles):
 
 
 def _read_table(path: Path, rig: RigDescription) -> pa.Table:
+    """The table with CSV header units stripped from the names; a declared unit other than the
+    description's (CSV ``name [unit]``, Parquet field metadata ``unit``) is refused."""
     source = str(path)
     try:
         if path.suffix == ".parquet":
-            return pq.read_table(path)
-        if path.suffix != ".csv":
+            table = pq.read_table(path)
+            declared = [(f.name, (f.metadata or {}).get(b"unit", b"").decode() or None) for f in table.schema]
+        elif path.suffix == ".csv":
+            table = pa_csv.read_csv(path)
+            matches = [(raw, _HEADER.match(raw)) for raw in table.column_names]
+            declared = [(m["name"], m["unit"]) if m else (raw, None) for raw, m in matches]
+        else:
             raise DataError(f"table file suffix must be .csv or .parquet. Got {path.suffix!r}.", source)
-        table = pa_csv.read_csv(path)
     except (OSError, pa.ArrowInvalid) as exc:
         raise DataError(f"file must be a readable table. Got: {str(exc).splitlines()[0]}.", source) from None
-    names = []
     units = {rig.sampling[channel.name].source: channel.unit for channel in rig.channels}
-    for raw in table.column_names:
-        match = _HEADER.match(raw)
-        name, unit = (match["name"], match["unit"]) if match else (raw, None)
-        if unit is not None and name in units and unit.strip() != units[name]:
+    for name, unit in declared:
+        expected = units.get(name)
+        if unit is not None and expected is not None and unit.strip() not in UNIT_ALIASES.get(expected, {expected}):
             raise DataError(
-                f"column '{name}' must be in {units[name]} (the rig description's unit). Got [{unit}]. "
+                f"column '{name}' must be in {expected} (the rig description's unit). Got [{unit}]. "
                 "Convert it, or declare the unit and a scale in the description.",
                 source,
             )
-        names.append(name)
-    return table.rename_columns(names)
+    return table.rename_columns([name for name, _ in declared])
 
 
 def _labels(table: pa.Table, label: Label, source: str) -> np.ndarray:
