@@ -5,14 +5,13 @@ description ``uci-hydraulic`` and prints, per component, accuracy and macro-F1 o
 
 - ``statistics``: the plain baseline (mean, std, min, max, slope and 6 phase means of every
   channel → LDA), and
-- ``transients``: the pressures', motor power's and flows' values around each load change relative to
-  their settled level,
-  the other components' directions projected out (dimension chosen on the training cycles only)
-  → LDA,
+- ``transients``: the pressures', motor power's and flows' values around each load change relative
+  to their settled level, the other components' directions projected out (dimension chosen on the
+  training cycles only) → LDA,
 
 on (a) 5 random folds of cycles and (b) the honest split (within each class of the component,
 its first 70 % of cycles in recording order train, the last 30 % test). ``--forest`` adds the
-baseline features with a random forest (slow: about 1 min per component on one core).
+baseline features with a random forest (10-30 s per component on one core; the rest: a few s).
 
 Issue 17's reference figures for the plain baseline: (a) 99.8 / 100 / 99.9 / 97.6-99.1 %,
 (b) 100 / 80-100 / 100 / 53-56 % (cooler / valve / pump / accumulator).
