@@ -28,3 +28,18 @@ def test_the_validation_score_rewards_the_channel_that_carries_the_condition() -
     both = validation_score(values, {"c": labels, "d": 1.0 - labels}, (1, 2))
     assert both > 0.9
     assert greedy_channels(lambda chs: validation_score(values, {"c": labels}, chs), 3, 1)[0][0] == (1,)
+
+
+def test_the_validation_score_of_transients_reads_the_load_changes_of_the_reference() -> None:
+    rng = np.random.default_rng(3)
+    labels = np.tile(np.repeat([0.0, 1.0], 20), 4)
+    step = np.zeros((labels.size, 20))
+    step[:, 5:15] = 1.0
+    pressure = 100.0 + 50.0 * step
+    pressure[:, 5] -= 10.0 + 5.0 * labels  # the condition leaves more of the step unsettled
+    flat = np.zeros_like(pressure)
+    values = np.stack([pressure, flat], axis=1) + rng.normal(0.0, 0.3, (labels.size, 2, 20))
+    nuisance = {"c": np.zeros((labels.size, 1))}
+    assert validation_score(values, {"c": labels}, [0], "transients", reference=0, nuisance=nuisance) > 0.95
+    # the flat channel alone knows nothing, though the reference still finds the load changes
+    assert validation_score(values, {"c": labels}, [1], "transients", reference=0, nuisance=nuisance) < 0.75

@@ -47,8 +47,9 @@ class ComponentClassifier:
     directions : int or None, default None
         Nuisance dimensions removed (``transients``); None chooses from :data:`DIRECTIONS_GRID`.
     channels : sequence of int or None, default None
-        Channels (axis 1) whose transients are features (``transients``); None: every channel.
-        Slow channels (temperatures) have no load-change dynamics and only add noise.
+        Channels (axis 1) the features are made of; None: every channel. For ``transients`` the
+        slow channels (temperatures) have no load-change dynamics and only add noise; the
+        ``reference`` channel need not be among them.
     """
 
     def __init__(
@@ -74,7 +75,7 @@ class ComponentClassifier:
         self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, directions: int
     ) -> tuple[LoadChangeTransients | None, NuisanceProjection | None, Any]:
         if self.features == "statistics":
-            x = cycle_statistics(values, self.grid_hz, self.phases)
+            x = self._statistics(values)
             return None, None, make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(x, labels)
         transients = LoadChangeTransients(
             reference=self.reference, threshold=self.threshold, channels=self.channels
@@ -127,11 +128,15 @@ class ComponentClassifier:
         best = max(scores)
         return next(k for k, s in zip(grid, scores, strict=True) if s >= best - 1e-3)
 
+    def _statistics(self, values: np.ndarray) -> np.ndarray:
+        chosen = values if self.channels is None else values[:, list(self.channels), :]
+        return cycle_statistics(chosen, self.grid_hz, self.phases)
+
     def _transform(
         self, values: np.ndarray, transients: LoadChangeTransients | None, projection: NuisanceProjection | None
     ) -> np.ndarray:
         if transients is None or projection is None:
-            return cycle_statistics(values, self.grid_hz, self.phases)
+            return self._statistics(values)
         return projection.transform(transients.transform(values))
 
     def _features(self, values: np.ndarray) -> np.ndarray:

@@ -54,8 +54,11 @@ def validation_score(
     channels: Sequence[int],
     features: str = "statistics",
     grid_hz: float = 1.0,
+    *,
+    reference: int = 0,
+    nuisance: Mapping[str, np.ndarray] | None = None,
 ) -> float:
-    """Mean validation accuracy over components of a classifier that sees only ``channels``.
+    """Mean validation accuracy over components of a classifier that reads only ``channels``.
 
     Parameters
     ----------
@@ -64,12 +67,18 @@ def validation_score(
     labels : mapping of str to ndarray, shape (n_cycles,)
         Each component's condition per cycle.
     channels : sequence of int
-        The channels the classifier may read.
+        The channels the classifier's features are made of.
+    features, grid_hz, reference
+        As :class:`ComponentClassifier` (``reference`` locates the load changes for ``transients``
+        and may lie outside ``channels``).
+    nuisance : mapping of str to ndarray, shape (n_cycles, n_others), optional
+        Per component, the other components' conditions (``transients``).
     """
-    subset = values[:, list(channels), :]
     accuracies = []
-    for y in labels.values():
+    for name, y in labels.items():
         fit, check = ordered_split(y)
-        model = ComponentClassifier(features=features, grid_hz=grid_hz).fit(subset[fit], y[fit])
-        accuracies.append(float(np.mean(model.predict(subset[check]) == y[check])))
+        others = None if nuisance is None else nuisance[name][fit]
+        model = ComponentClassifier(features=features, grid_hz=grid_hz, reference=reference, channels=channels)
+        model.fit(values[fit], y[fit], others)
+        accuracies.append(float(np.mean(model.predict(values[check]) == y[check])))
     return float(np.mean(accuracies))
