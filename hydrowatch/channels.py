@@ -8,11 +8,11 @@ plant kernel's output columns (:meth:`ChannelSet.column`).
 
 Roles:
 
-- ``command``: the input every reference model is driven by (the valve voltage), exactly one;
+- ``command``: the input every reference model is driven by (the valve voltage), at most one;
 - ``sensor``: a health sensor, an output the health methods judge (flow, speed, torque);
 - ``condition``: a measurement of the operating condition (pressures, oil temperature).
 
-A rig description (a later issue) builds another :class:`ChannelSet` from its own channels.
+A rig description (:mod:`hydrowatch.rig`) builds another :class:`ChannelSet` from its own channels.
 The unit conversions between the plant's SI state and the channels' units live here as well.
 """
 
@@ -75,7 +75,8 @@ class ChannelSet:
     Parameters
     ----------
     channels : tuple of Channel
-        Exactly one ``command`` channel, which is required, at least one ``sensor``, names unique.
+        At most one ``command`` channel, which is required (a rig that repeats one fixed cycle may
+        record none), at least one ``sensor``, names unique.
     """
 
     channels: tuple[Channel, ...]
@@ -86,8 +87,8 @@ class ChannelSet:
         if repeated:
             raise ParameterError(f"channel names must be unique. Got {repeated} more than once. Rename them.")
         commands = [c for c in self.channels if c.role == "command"]
-        if len(commands) != 1 or commands[0].optional:
-            raise ParameterError(f"a channel set must have exactly one required command channel. Got "
+        if len(commands) > 1 or any(c.optional for c in commands):
+            raise ParameterError(f"a channel set must have at most one command channel, and a required one. Got "
                              f"{[(c.name, 'optional' if c.optional else 'required') for c in commands]}.")
         if not any(c.role == "sensor" for c in self.channels):
             raise ParameterError(f"a channel set must have at least one sensor channel. Got roles "
@@ -114,9 +115,18 @@ class ChannelSet:
         return tuple(c.name for c in self.channels)
 
     @property
+    def has_command(self) -> bool:
+        """Whether a command channel is declared (a rig that repeats a fixed cycle may record none)."""
+        return any(c.role == "command" for c in self.channels)
+
+    @property
     def command(self) -> str:
-        """Name of the command channel (the reference models' input)."""
-        return next(c.name for c in self.channels if c.role == "command")
+        """Name of the command channel (the reference models' input); an error when there is none."""
+        for c in self.channels:
+            if c.role == "command":
+                return c.name
+        raise ParameterError(f"a command channel must be declared for this use. Got only {list(self.names)}. "
+                             "Declare the rig's command with role 'command', or use a method that needs none.")
 
     def with_role(self, role: str) -> tuple[str, ...]:
         """Names of the channels of one role, in column order."""

@@ -69,8 +69,8 @@ def test_column_and_lookup_errors_name_the_channel() -> None:
 
 @pytest.mark.parametrize(("channels", "match"), [
     ((Channel("u", "V", "command"), Channel("y", "m", "sensor"), Channel("y", "m", "sensor")), "unique"),
-    ((Channel("u", "V", "command"), Channel("v", "V", "command"), Channel("y", "m", "sensor")), "one required command"),
-    ((Channel("u", "V", "command", optional=True), Channel("y", "m", "sensor")), "one required command"),
+    ((Channel("u", "V", "command"), Channel("v", "V", "command"), Channel("y", "m", "sensor")), "at most one command"),
+    ((Channel("u", "V", "command", optional=True), Channel("y", "m", "sensor")), "a required one"),
     ((Channel("u", "V", "command"), Channel("T", "°C", "condition")), "at least one sensor"),
 ])
 def test_a_channel_set_refuses_an_inconsistent_declaration(channels: tuple[Channel, ...], match: str) -> None:
@@ -88,3 +88,10 @@ def test_a_rig_declares_its_own_channels() -> None:
             Channel(bad, "V", "command")
     with pytest.raises(ParameterError, match="role"):
         Channel("x", "V", "input")
+
+
+def test_a_rig_without_a_command_says_so_when_one_is_asked_for() -> None:
+    rig = ChannelSet((Channel("PS1", "bar", "sensor"), Channel("TS1", "°C", "condition")))
+    assert not rig.has_command and PLANT.has_command and rig.sensors == ("PS1",)
+    with pytest.raises(ParameterError, match="command channel must be declared"):
+        _ = rig.command

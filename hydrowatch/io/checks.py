@@ -70,8 +70,10 @@ def check_unit(column: str, unit: str | None, source: str | None = None) -> None
         raise DataError(f"column '{column}' must be in {expected}. Got {unit!r}. Convert it to {expected}.", source)
 
 
-def check_time_base(t: np.ndarray, source: str | None = None, rate_hz: float = SAMPLE_RATE_HZ) -> None:
-    """Check that ``t`` [s] is finite, strictly increasing and 1/``rate_hz`` apart.
+def check_time_base(
+    t: np.ndarray, source: str | None = None, rate_hz: float = SAMPLE_RATE_HZ, column: str = "t"
+) -> None:
+    """Check that ``t`` [s] (the file's ``column``) is finite, strictly increasing and 1/``rate_hz`` apart.
 
     Raises
     ------
@@ -82,15 +84,15 @@ def check_time_base(t: np.ndarray, source: str | None = None, rate_hz: float = S
         raise DataError("recording must have at least one sample. Got none.", source)
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise DataError(f"column 't' must be finite. Got {t[bad[0]]} in row {bad[0]}.", source)
+        raise DataError(f"column '{column}' must be finite. Got {t[bad[0]]} in row {bad[0]}.", source)
     dt = 1.0 / rate_hz
     step = np.diff(t)
     back = np.flatnonzero(step <= 0)
     if back.size:
         row = int(back[0]) + 1
         raise DataError(
-            f"column 't' must be strictly increasing. Got t={t[row]:.6f} s in row {row} after "
-            f"t={t[row - 1]:.6f} s. Sort the rows and drop duplicates.",
+            f"column '{column}' must be strictly increasing. Got {column}={t[row]:.6f} s in row {row} after "
+            f"{column}={t[row - 1]:.6f} s. Sort the rows and drop duplicates.",
             source,
         )
     off = np.flatnonzero(np.abs(step - dt) > TIME_TOLERANCE * dt)
@@ -99,8 +101,8 @@ def check_time_base(t: np.ndarray, source: str | None = None, rate_hz: float = S
         missing = step[off[0]] / dt - 1.0
         raise DataError(
             f"samples must be {dt * 1e3:g} ms apart ({rate_hz:g} Hz). Got a step of {step[off[0]] * 1e3:.3f} ms "
-            f"before row {row} (t={t[row]:.6f} s, about {missing:.1f} samples missing); {off.size} such steps "
-            "in all. Split the recording at gaps or resample it to 200 Hz.",
+            f"before row {row} ({column}={t[row]:.6f} s, about {missing:.1f} samples missing); {off.size} such steps "
+            f"in all. Split the recording at gaps or resample it to {rate_hz:g} Hz.",
             source,
         )
 

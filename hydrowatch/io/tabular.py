@@ -67,7 +67,8 @@ def _first_non_number(column: pa.ChunkedArray) -> tuple[int, Any]:
     return -1, None
 
 
-def _as_float(name: str, column: pa.ChunkedArray, source: str) -> np.ndarray:
+def as_float(name: str, column: pa.ChunkedArray, source: str) -> np.ndarray:
+    """A column as float64 (NaN where empty); a non-numeric cell is refused naming column and row."""
     if pa.types.is_null(column.type):
         return np.full(len(column), np.nan)
     if pa.types.is_floating(column.type) or pa.types.is_integer(column.type):
@@ -92,7 +93,7 @@ def _table_from_arrow(table: pa.Table, column_units: Mapping[str, str | None], s
     if "t" not in table.column_names:
         raise DataError("column 't' [s] must be present. Got none. Add the sample times in seconds.", source)
     channels = {
-        name: _as_float(name, table.column(name), source)
+        name: as_float(name, table.column(name), source)
         for name in table.column_names
         if name in UNITS and name != "t"
     }
@@ -104,7 +105,7 @@ def _table_from_arrow(table: pa.Table, column_units: Mapping[str, str | None], s
                 f"column '{LABEL_FIELD}' must have a label in every row. Got {column.null_count} empty.", source
             )
         labels = np.asarray(column.cast(pa.string()).to_pylist(), dtype=object)
-    return Table(_as_float("t", table.column("t"), source), channels, labels)
+    return Table(as_float("t", table.column("t"), source), channels, labels)
 
 
 def read_csv(path: str | Path) -> Table:
@@ -180,4 +181,4 @@ def write_table(
         raise DataError(f"table file suffix must be .parquet or .csv. Got {path.suffix!r}.", str(path))
 
 
-__all__ = ["META_KEY", "Table", "read_csv", "read_parquet", "to_arrow", "write_table"]
+__all__ = ["META_KEY", "Table", "as_float", "read_csv", "read_parquet", "to_arrow", "write_table"]
