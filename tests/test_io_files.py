@@ -169,3 +169,20 @@ def test_unsupported_suffix_and_unreadable_files(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(DataError, match="junk.mcap: file must be an MCAP file"):
         read_recording(tmp_path / "junk.mcap")
+
+
+def test_training_reads_recordings_in_subfolders_and_passes_over_files_still_being_written(tmp_path, caplog):
+    # the recorder's layout, <out>/<fleet>/<machine>/*.mcap, with one file it has not closed yet
+    from hydrowatch.training.data import read_labelled
+
+    for machine, state in (("m000", "healthy"), ("m001", "load_warning")):
+        (tmp_path / "f1" / machine).mkdir(parents=True)
+        write_recording(make_recording(state=state), tmp_path / "f1" / machine / "a.mcap")
+    whole = (tmp_path / "f1" / "m000" / "a.mcap").read_bytes()
+    (tmp_path / "f1" / "m000" / "b.mcap").write_bytes(whole[: len(whole) // 2])  # no closing bytes
+    with pytest.raises(DataError, match="b.mcap"):
+        read_labelled(tmp_path)
+    caplog.clear()
+    grouped = read_labelled(tmp_path, skip_unreadable=True)
+    assert {state: len(runs) for state, runs in grouped.items()} == {"healthy": 1, "load_warning": 1}
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]

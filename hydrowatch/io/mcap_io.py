@@ -238,6 +238,22 @@ class Recovery:
         )
 
 
+def mcap_finished(path: str | Path) -> bool:
+    """Whether an MCAP file ends with the closing magic bytes (its writer finished it), from its last 8 bytes:
+    a cheap test before reading a file that a recorder may still be writing."""
+    from mcap.writer import MCAP0_MAGIC
+
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            if f.tell() < 2 * len(MCAP0_MAGIC):
+                return False
+            f.seek(-len(MCAP0_MAGIC), 2)
+            return f.read() == MCAP0_MAGIC
+    except OSError:
+        return False
+
+
 def iter_records(
     path: str | Path, recovery: Recovery | None = None
 ) -> Iterator[tuple[Channel, Schema | None, Message]]:

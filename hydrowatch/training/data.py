@@ -16,6 +16,7 @@ import numpy as np
 
 from hydrowatch.errors import DataError
 from hydrowatch.io import read_recording
+from hydrowatch.io.mcap_io import mcap_finished
 from hydrowatch.io.recordings import SUFFIXES
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import Recording
@@ -57,8 +58,8 @@ def label_runs(recording: Recording) -> list[Recording]:
 def read_labelled(path: str | Path, *, skip_unreadable: bool = False) -> dict[str, list[Recording]]:
     """Every labelled run under ``path``, grouped by health state (file order kept).
 
-    ``skip_unreadable``: leave out (and log) files that cannot be read, e.g. the MCAP file a
-    recorder is still writing, instead of failing.
+    ``skip_unreadable``: leave out files that cannot be read instead of failing: an MCAP file without its closing
+    bytes (a recorder is still writing it; logged at debug level only, it is expected) unread, others logged.
 
     Raises
     ------
@@ -67,6 +68,10 @@ def read_labelled(path: str | Path, *, skip_unreadable: bool = False) -> dict[st
     """
     grouped: dict[str, list[Recording]] = {}
     for file in recording_files(path):
+        if skip_unreadable and file.suffix == ".mcap" and not mcap_finished(file):
+            # a recorder is most likely still writing it: expected, so neither read nor warned about
+            event(_log, "unfinished recording skipped", logging.DEBUG, file=str(file))
+            continue
         try:
             recording = read_recording(file)
         except DataError as exc:
