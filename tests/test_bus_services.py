@@ -253,3 +253,21 @@ def test_a_dead_recorder_shards_machines_are_taken_over_and_given_back(tmp_path:
         assert taken[0] <= killed + 10.0 + 1.0, (machine, taken[0], killed)
         assert taken[-1] <= returned + 10.0 + 1.0, (machine, taken[-1], returned)  # and gave them back
         assert again[machine][0][0] <= taken[-1] + 1.0  # the returned shard picked them up where shard 0 left off
+
+
+def test_trainer_answers_a_stop_at_once_even_mid_training(tmp_path: Path) -> None:
+    from hydrowatch.io import write_recording
+    from hydrowatch.plant.fleet import simulate_states
+
+    for rec in simulate_states(["healthy", "load_warning"], seconds=60, seed=1):
+        write_recording(rec, tmp_path / f"{rec.state}.mcap")
+    trainer = start("services.trainer", "--data", tmp_path, "--out", tmp_path / "model", "--every", 30,
+                    "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    try:
+        time.sleep(4)  # importing and training take longer than this: the stop comes mid-training
+        began = time.monotonic()
+        assert stop(trainer) == 0
+        assert time.monotonic() - began < 5.0
+    finally:
+        trainer.kill()
+    assert not (tmp_path / "model" / "parity").exists()  # the last method of the training never got there

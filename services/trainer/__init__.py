@@ -34,22 +34,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_tracking_arguments(parser)
 
 
-def run(args: argparse.Namespace, stop: threading.Event) -> int:
-    """Train (repeatedly with ``--every``) until ``stop``; returns 0, or 2 when a single training fails."""
+def _train_once(args: argparse.Namespace, settings: list, failure: list[DataError]) -> None:
+    """One training of every method (runs in a worker thread, :func:`run`); a DataError is handed back."""
     from hydrowatch.training.pipeline import train_each
 
+    try:
+        for summary in train_each(
+                args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
+                model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True,
+                check_seconds=args.check_seconds):
+            print(json.dumps(summary), flush=True)
+    except DataError as exc:
+        failure.append(exc)
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Train (repeatedly with ``--every``) until ``stop``; returns 0, or 2 when a single training fails.
+
+    Each training runs in a worker thread, so that a stop request is answered at once even mid-training (tens of
+    seconds): the training in progress is then abandoned. Nothing is lost by that: the recordings stay, and a
+    training's MLflow run is opened only after it has trained (:func:`hydrowatch.training.tracking.log_training`).
+    """
     settings = settings_list_from_args(args)
     while not stop.is_set():
-        try:
-            for summary in train_each(
-                    args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
-                    model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True,
-                    check_seconds=args.check_seconds):
-                print(json.dumps(summary), flush=True)
-        except DataError as exc:
+        failure: list[DataError] = []
+        worker = threading.Thread(target=_train_once, args=(args, settings, failure), name="training", daemon=True)
+        worker.start()
+        while worker.is_alive() and not stop.wait(0.2):
+            pass
+        if worker.is_alive():
+            event(log, "training abandoned: stop requested", logging.WARNING)
+            return 0
+        if failure:
             if args.every <= 0:
-                raise
-            event(log, "training skipped", logging.WARNING, reason=str(exc))
+                raise failure[0]
+            event(log, "training skipped", logging.WARNING, reason=str(failure[0]))
         if args.every <= 0 or stop.wait(args.every):
             break
     return 0
