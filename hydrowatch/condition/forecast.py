@@ -1,0 +1,252 @@
+"""When will a part reach the alert: a trend of its degradation index over its own history (issue 15).
+
+Input: one component's index per window (:mod:`hydrowatch.condition.degradation`; 0 as commissioned, 1.0 alert)
+with the windows' times. Not specific to the parity method: any index series on that scale works.
+
+1. **Clean.** Windows without an index (``invalid``, ``unknown``, a relation the sensors cannot test: NaN) are left
+   out. The time axis is the machine's *operating* time (:func:`operating_time`): a backward clock jump, or a
+   forward one longer than ``max_gap_s``, counts as one window hop, since wear advances while the machine runs and
+   a clock that jumps says nothing about how long it ran; shorter gaps count as they are.
+2. **Reset.** A part replaced shows as the index falling back near 0. The last point where the median of the next
+   :data:`RESET_RUN` indices is below :data:`RESET_NEAR_ZERO` and at least :data:`RESET_DROP` below the median of
+   the previous :data:`RESET_RUN` starts a new trend (:func:`reset_start`); nothing before it is used.
+3. **Robust points.** The segment is cut into at most :data:`BINS` bins of consecutive windows, each reduced to its
+   mean time and *median* index, so isolated outliers do not move the fit.
+4. **Trend.** Least squares of I(t) = α + β·e^{γ·(t − t_now)} over a grid of γ (γ = 0 is the straight line
+   α + β·(t − t_now)), γ·span in :data:`GROWTH_GRID`; the exponential is kept over the line when it lowers the
+   Bayesian information criterion (one parameter more). Linear wear and exponential (accelerating or slowing) wear
+   are both members of the family.
+5. **Alert time and interval.** The fitted curve is solved for I = 1 after the last window; the 95 % interval comes
+   from a moving-block bootstrap of the bin residuals (:data:`BOOTSTRAP` resamples, blocks keep the residuals'
+   correlation), each resample refitted with the same model selection.
+6. **When not to forecast** (``alert_in_s`` None with a ``reason``): fewer than :data:`MIN_POINTS` windows or less
+   than ``min_span_s`` of operating time since the reset ("too short"); a rate whose 95 % interval reaches 0 or a
+   crossing further away than :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from hydrowatch.errors import DataError
+
+ALERT = 1.0
+"""Index at the alert level."""
+RESET_RUN = 5
+"""Windows whose median is compared before and after a candidate reset."""
+RESET_DROP = 0.25
+"""Fall of the median index (a quarter of the alert) that marks a part replaced."""
+RESET_NEAR_ZERO = 0.2
+"""The median index after a reset must be below this (a new part reads near 0)."""
+BINS = 60
+"""Most bins the segment is reduced to."""
+MIN_POINTS = 8
+"""Fewest valid windows since the reset for a forecast."""
+GROWTH_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+"""γ·span values tried (0: straight line); span = operating time covered by the segment."""
+BOOTSTRAP = 200
+"""Bootstrap resamples of the interval."""
+HORIZON_FACTOR = 10.0
+"""A crossing further than this × the segment's span is not forecast (extrapolation beyond what the data show)."""
+NEVER = 1e300
+"""Stands for a crossing that never comes (a flat or falling resample) inside the quantiles."""
+
+
+@dataclass(frozen=True)
+class Forecast:
+    """Time until a component's index reaches 1.0 (alert), from its own history.
+
+    Attributes
+    ----------
+    alert_in_s : float or None
+        Operating seconds from the last window with an index to the alert crossing (0 when already beyond); None
+        when the history does not support a forecast (``reason``).
+    ci95 : (float or None, float or None)
+        95 % interval of ``alert_in_s``, s; None for an unbounded end.
+    rate_per_h : float
+        Current wear rate dI/dt, index per operating hour (NaN with too few windows).
+    model : str
+        ``"linear"``, ``"exp"`` or ``"none"``.
+    level : float
+        Fitted index now.
+    points : int
+        Windows with an index since the last reset.
+    reset_at_s : float or None
+        Time of the window that started the current trend after a reset, s (None without a reset).
+    reason : str or None
+        Why there is no forecast.
+    """
+
+    alert_in_s: float | None
+    ci95: tuple[float | None, float | None]
+    rate_per_h: float
+    model: str = "none"
+    level: float = float("nan")
+    points: int = 0
+    reset_at_s: float | None = None
+    reason: str | None = field(default=None)
+
+    def to_dict(self) -> dict[str, object]:
+        """``score --json``'s summary entry: alert_in_s, ci95, rate_per_h (+ model, level, points, reset_at_s,
+        reason); floats rounded, non-finite as None."""
+
+        def num(x: float | None, digits: int = 1) -> float | None:
+            return None if x is None or not np.isfinite(x) else round(float(x), digits)
+
+        out: dict[str, object] = {"alert_in_s": num(self.alert_in_s), "ci95": [num(self.ci95[0]), num(self.ci95[1])],
+                                  "rate_per_h": num(self.rate_per_h, 5), "model": self.model,
+                                  "level": num(self.level, 4), "points": self.points,
+                                  "reset_at_s": num(self.reset_at_s, 3)}
+        if self.reason is not None:
+            out["reason"] = self.reason
+        return out
+
+
+def operating_time(t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Operating time of consecutive windows, s, shape (n,): steps ≤ 0 or > ``max_gap_s`` count as one typical hop.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Window times in arrival order, s (may jump back or forward).
+    max_gap_s : float
+        Longest step counted as it is, s.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 2:
+        return t - (t[0] if t.size else 0.0)
+    dt = np.diff(t)
+    ok = (dt > 0) & (dt <= max_gap_s)
+    hop = float(np.median(dt[ok])) if ok.any() else 1.0
+    return np.concatenate([[0.0], np.cumsum(np.where(ok, dt, hop))])
+
+
+def reset_start(index: np.ndarray) -> int:
+    """Position where the current trend starts: after the last reset (module docstring), else 0.
+
+    Parameters
+    ----------
+    index : ndarray, shape (n,)
+        Valid indices in time order.
+    """
+    v = np.asarray(index, dtype=np.float64)
+    n, r = v.size, RESET_RUN
+    if n < 2 * r:
+        return 0
+    positions = np.arange(r, n - r + 1)
+    before = np.array([np.median(v[i - r:i]) for i in positions])
+    after = np.array([np.median(v[i:i + r]) for i in positions])
+    found = np.flatnonzero((after < RESET_NEAR_ZERO) & (before - after >= RESET_DROP))
+    if not found.size:
+        return 0
+    run = [found[-1]]  # the last run of candidate positions; the step is where the means differ most
+    while run[-1] - 1 in found:
+        run.append(run[-1] - 1)
+    step = [np.mean(v[positions[k] - r:positions[k]]) - np.mean(v[positions[k]:positions[k] + r]) for k in run]
+    return int(positions[run[int(np.argmax(step))]])
+
+
+def _binned(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean time, median index) of at most :data:`BINS` bins of consecutive points."""
+    groups = np.array_split(np.arange(t.size), min(BINS, t.size))
+    return np.array([t[g].mean() for g in groups]), np.array([np.median(v[g]) for g in groups])
+
+
+def _fit(x: np.ndarray, y: np.ndarray, span: float) -> tuple[float, float, float, float]:
+    """Best (α, β, γ, RSS) of y ≈ α + β·e^{γx} (γ = 0: α + β·x) by the information criterion, x ≤ 0 (s)."""
+    n = x.size
+    best: tuple[float, float, float, float] | None = None
+    best_bic = np.inf
+    for g_span in GROWTH_GRID:
+        g = g_span / span
+        basis = x if g == 0.0 else np.expm1(g * x) / g  # → x as γ → 0: β is the slope at now in both
+        a = np.column_stack([np.ones(n), basis])
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        rss = float(np.sum((y - a @ coef) ** 2))
+        k = 2 if g == 0.0 else 3
+        bic = n * np.log(max(rss, 1e-300) / n) + k * np.log(n)
+        if bic < best_bic:
+            best_bic, best = bic, (float(coef[0]), float(coef[1]), g, rss)
+    assert best is not None
+    return best
+
+
+def _crossing(alpha: float, beta: float, gamma: float) -> float:
+    """Time after now, s, at which α + β·(e^{γx} − 1)/γ reaches :data:`ALERT` (0 if already there, inf never)."""
+    if alpha >= ALERT:
+        return 0.0
+    need = ALERT - alpha
+    if gamma == 0.0:
+        return need / beta if beta > 0 else np.inf
+    arg = 1.0 + gamma * need / beta if beta != 0 else -1.0
+    if beta <= 0 or arg <= 0:
+        return np.inf
+    return float(np.log(arg) / gamma)
+
+
+def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0,
+                   seed: int = 0) -> Forecast:
+    """Forecast one component's alert crossing from its index history (module docstring).
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Window times, s, in arrival order.
+    index : array_like, shape (n,)
+        Degradation index per window; NaN where the window has none (invalid, unknown).
+    max_gap_s : float, default 3600
+        Longest forward step of the clock counted as operating time, s.
+    min_span_s : float, default 300
+        Shortest operating time since the last reset that is forecast from, s.
+    seed : int, default 0
+        Bootstrap seed.
+
+    Raises
+    ------
+    DataError
+        When ``t`` and ``index`` differ in length.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    v = np.asarray(index, dtype=np.float64)
+    if t.shape != v.shape or t.ndim != 1:
+        raise DataError(f"times and index must be 1-D of one length. Got shapes {t.shape} and {v.shape}.")
+    keep = np.isfinite(v) & np.isfinite(t)
+    t, v = t[keep], v[keep]
+    start = reset_start(v)
+    reset_at = float(t[start]) if start > 0 else None
+    op = operating_time(t[start:], max_gap_s)
+    v = v[start:]
+    if v.size < MIN_POINTS or op[-1] < min_span_s:
+        return Forecast(None, (None, None), float("nan"), points=int(v.size), reset_at_s=reset_at,
+                        reason=f"too short: {v.size} windows over {op[-1] if op.size else 0.0:.0f} s since "
+                               f"{'the reset' if reset_at is not None else 'the start'}; a forecast needs "
+                               f"{MIN_POINTS} windows over {min_span_s:g} s")
+    x, y = _binned(op - op[-1], v)
+    span = float(op[-1])
+    alpha, beta, gamma, _ = _fit(x, y, span)
+    fitted = alpha + beta * (x if gamma == 0.0 else np.expm1(gamma * x) / gamma)
+    residual = y - fitted
+    rng = np.random.default_rng(seed)
+    block = max(1, int(round(np.sqrt(x.size))))
+    rates, crossings = np.empty(BOOTSTRAP), np.empty(BOOTSTRAP)
+    for b in range(BOOTSTRAP):
+        starts = rng.integers(0, x.size - block + 1, size=int(np.ceil(x.size / block)))
+        resampled = np.concatenate([residual[s:s + block] for s in starts])[: x.size]
+        a_b, b_b, g_b, _ = _fit(x, fitted + resampled, span)
+        rates[b], crossings[b] = b_b, _crossing(a_b, b_b, g_b)
+    model = "linear" if gamma == 0.0 else "exp"
+    rate_h = beta * 3600.0
+    lo, hi = (float(q) for q in np.quantile(np.minimum(crossings, NEVER), [0.025, 0.975]))
+    ci = (lo if lo < NEVER else None, hi if hi < NEVER else None)
+    fitted_now = Forecast(None, ci, rate_h, model, alpha, int(v.size), reset_at)
+    point = _crossing(alpha, beta, gamma)
+    if point == 0.0:
+        return replace(fitted_now, alert_in_s=0.0, ci95=(0.0, ci[1] if ci[1] is not None else 0.0))
+    low_rate = float(np.quantile(rates, 0.025))
+    if low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
+        why = ("the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
+               else f"the alert is further than {HORIZON_FACTOR:g}× the {span:.0f} s of history")
+        return replace(fitted_now, reason=f"too flat: {why}")
+    return replace(fitted_now, alert_in_s=float(point))
