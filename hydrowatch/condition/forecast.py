@@ -12,13 +12,16 @@ with the windows' times. Not specific to the parity method: any index series on 
    the previous :data:`RESET_RUN` starts a new trend (:func:`reset_start`); nothing before it is used.
 3. **Robust points.** The segment is cut into at most :data:`BINS` bins of consecutive windows, each reduced to its
    mean time and *median* index, so isolated outliers do not move the fit.
-4. **Trend.** Least squares of I(t) = α + β·e^{γ·(t − t_now)} over a grid of γ (γ = 0 is the straight line
-   α + β·(t − t_now)), γ·span in :data:`GROWTH_GRID`; the exponential is kept over the line when it lowers the
-   Bayesian information criterion (one parameter more). Linear wear and exponential (accelerating or slowing) wear
-   are both members of the family.
+4. **Trend.** Least squares of I(t) = α + β·(e^{γ·(max(t, h) − t_now)} − 1)/γ over a grid of growth rates γ
+   (γ = 0 is the straight line α + β·(max(t, h) − t_now); γ·span in :data:`GROWTH_GRID`) and onsets h
+   (:data:`ONSETS`: the trend may be flat before the part starts wearing); the candidate with the smallest Bayesian
+   information criterion wins (a growth rate and an onset cost one parameter each). α is the level now, β the rate
+   now. Linear wear, exponential (accelerating or slowing) wear, and either starting after a quiet stretch are
+   members of the family.
 5. **Alert time and interval.** The fitted curve is solved for I = 1 after the last window; the 95 % interval comes
    from a moving-block bootstrap of the bin residuals (:data:`BOOTSTRAP` resamples, blocks keep the residuals'
-   correlation), each resample refitted with the same model selection.
+   correlation), each resample refitted with the same model selection and solved for an alert level drawn with
+   the index's systematic error (:data:`ALERT_SD`): the index's own scale is known to a few percent only.
 6. **When not to forecast** (``alert_in_s`` None with a ``reason``): fewer than :data:`MIN_POINTS` windows or less
    than ``min_span_s`` of operating time since the reset ("too short"); a rate whose 95 % interval reaches 0 or a
    crossing further away than :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from hydrowatch.condition.degradation import SYSTEMATIC
 from hydrowatch.errors import DataError
 
 ALERT = 1.0
@@ -44,12 +48,18 @@ BINS = 60
 """Most bins the segment is reduced to."""
 MIN_POINTS = 8
 """Fewest valid windows since the reset for a forecast."""
+ONSETS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+"""Onsets of wear tried, as quantiles of the segment's bin times (0: wearing from the first window)."""
 GROWTH_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 """γ·span values tried (0: straight line); span = operating time covered by the segment."""
 BOOTSTRAP = 200
 """Bootstrap resamples of the interval."""
 HORIZON_FACTOR = 10.0
 """A crossing further than this × the segment's span is not forecast (extrapolation beyond what the data show)."""
+ALERT_SD = SYSTEMATIC[0] + SYSTEMATIC[1] * ALERT
+"""Standard deviation of the index's systematic error at the alert (:data:`~hydrowatch.condition.degradation.
+SYSTEMATIC`): where the measured index reads 1.0 the part may be at 0.95 or 1.05, so each bootstrap resample
+solves for its own alert level drawn with it."""
 NEVER = 1e300
 """Stands for a crossing that never comes (a flat or falling resample) inside the quantiles."""
 
@@ -154,30 +164,46 @@ def _binned(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([t[g].mean() for g in groups]), np.array([np.median(v[g]) for g in groups])
 
 
-def _fit(x: np.ndarray, y: np.ndarray, span: float) -> tuple[float, float, float, float]:
-    """Best (α, β, γ, RSS) of y ≈ α + β·e^{γx} (γ = 0: α + β·x) by the information criterion, x ≤ 0 (s)."""
-    n = x.size
-    best: tuple[float, float, float, float] | None = None
-    best_bic = np.inf
-    for g_span in GROWTH_GRID:
-        g = g_span / span
-        basis = x if g == 0.0 else np.expm1(g * x) / g  # → x as γ → 0: β is the slope at now in both
-        a = np.column_stack([np.ones(n), basis])
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-        rss = float(np.sum((y - a @ coef) ** 2))
-        k = 2 if g == 0.0 else 3
-        bic = n * np.log(max(rss, 1e-300) / n) + k * np.log(n)
-        if bic < best_bic:
-            best_bic, best = bic, (float(coef[0]), float(coef[1]), g, rss)
-    assert best is not None
-    return best
+def _bases(x: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate trend shapes at bin times x ≤ 0 (0 = now), s: bases (J, n), their γ (J,) and parameter counts (J,).
+
+    Basis (e^{γ·max(x, h)} − 1)/γ (γ = 0: max(x, h)) for every γ of :data:`GROWTH_GRID` and onset h of
+    :data:`ONSETS`: 0 now, slope 1 now, so that α is the level now and β the rate now; before an onset h the trend
+    is flat (a part that starts wearing after a quiet stretch).
+    """
+    onsets = np.quantile(x, ONSETS)
+    bases, gammas, counts = [], [], []
+    for h_i, h in enumerate(onsets):
+        z = np.maximum(x, h)
+        for g_span in GROWTH_GRID:
+            g = g_span / span
+            bases.append(z if g == 0.0 else np.expm1(g * z) / g)
+            gammas.append(g)
+            counts.append(2 + (g != 0.0) + (h_i > 0))
+    return np.array(bases), np.array(gammas), np.array(counts)
 
 
-def _crossing(alpha: float, beta: float, gamma: float) -> float:
-    """Time after now, s, at which α + β·(e^{γx} − 1)/γ reaches :data:`ALERT` (0 if already there, inf never)."""
-    if alpha >= ALERT:
+def _fit(bases: np.ndarray, gammas: np.ndarray, counts: np.ndarray,
+         y: np.ndarray) -> tuple[float, float, float, int]:
+    """(α, β, γ, which) of the candidate y ≈ α + β·basis with the smallest Bayesian information criterion (closed-form
+    least squares of every candidate at once)."""
+    n = y.size
+    bc = bases - bases.mean(axis=1, keepdims=True)
+    yc = y - y.mean()
+    sbb = np.einsum("jn,jn->j", bc, bc)
+    beta = np.where(sbb > 0, bc @ yc / np.maximum(sbb, 1e-300), 0.0)
+    rss = np.maximum(yc @ yc - beta**2 * sbb, 1e-300)
+    bic = n * np.log(rss / n) + counts * np.log(n)
+    j = int(np.argmin(bic))
+    alpha = float(y.mean() - beta[j] * bases[j].mean())
+    return alpha, float(beta[j]), float(gammas[j]), j
+
+
+def _crossing(alpha: float, beta: float, gamma: float, alert: float = ALERT) -> float:
+    """Time after now, s, at which α + β·(e^{γx} − 1)/γ reaches ``alert`` (0 if already there, inf never)."""
+    if alpha >= alert:
         return 0.0
-    need = ALERT - alpha
+    need = alert - alpha
     if gamma == 0.0:
         return need / beta if beta > 0 else np.inf
     arg = 1.0 + gamma * need / beta if beta != 0 else -1.0
@@ -225,17 +251,19 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
                                f"{MIN_POINTS} windows over {min_span_s:g} s")
     x, y = _binned(op - op[-1], v)
     span = float(op[-1])
-    alpha, beta, gamma, _ = _fit(x, y, span)
-    fitted = alpha + beta * (x if gamma == 0.0 else np.expm1(gamma * x) / gamma)
+    bases, gammas, counts = _bases(x, span)
+    alpha, beta, gamma, j = _fit(bases, gammas, counts, y)
+    fitted = alpha + beta * bases[j]
     residual = y - fitted
     rng = np.random.default_rng(seed)
     block = max(1, int(round(np.sqrt(x.size))))
     rates, crossings = np.empty(BOOTSTRAP), np.empty(BOOTSTRAP)
+    levels = ALERT + ALERT_SD * rng.standard_normal(BOOTSTRAP)  # the index's own systematic error at the alert
     for b in range(BOOTSTRAP):
         starts = rng.integers(0, x.size - block + 1, size=int(np.ceil(x.size / block)))
         resampled = np.concatenate([residual[s:s + block] for s in starts])[: x.size]
-        a_b, b_b, g_b, _ = _fit(x, fitted + resampled, span)
-        rates[b], crossings[b] = b_b, _crossing(a_b, b_b, g_b)
+        a_b, b_b, g_b, _ = _fit(bases, gammas, counts, fitted + resampled)
+        rates[b], crossings[b] = b_b, _crossing(a_b, b_b, g_b, levels[b])
     model = "linear" if gamma == 0.0 else "exp"
     rate_h = beta * 3600.0
     lo, hi = (float(q) for q in np.quantile(np.minimum(crossings, NEVER), [0.025, 0.975]))
