@@ -1,9 +1,11 @@
 """Degradation index and forecast on parts wearing out, on units that did not tune them (issue 15).
 
 Each unit draws every nominal parameter (``hydrowatch.plant.population.random_unit``: ±20 %, leakages and damping
-±50 %, sensor noise 1–3× the default). It is commissioned on 300 s of its own healthy working duty cycle
+±50 %, sensor noise 1–3× the default). It is commissioned on 300 s of its own healthy operation
 (``ConditionFeatures().fit({"healthy": …})``: the unit's nominal parameters are identified, as ``hydrowatch
-commission`` does), then runs on a **later day** (``later_day``: leakages, load and damping drifted ±3–5 %) for
+commission`` does): filtered noise 0–4 V by default (an identification run), or its working duty cycle
+(``--commission duty``, which leaves the pump and relief to the prior: docs/unseen-units.md). It then runs on a
+**later day** (``later_day``: leakages, load and damping drifted ±3–5 %) for
 ``--hours`` on a working duty cycle (holds, ramps, steps over 0.5–3.5 V) as seven machines: six each with one part
 wearing from index 0 to 1.3 (beyond the alert) over 30–120 minutes (drawn per path, starting after 2 minutes),
 linear on even units and accelerating (``exp``) on odd ones, and one healthy machine.
@@ -11,7 +13,8 @@ linear on even units and accelerating (``exp``) on odd ones, and one healthy mac
 Per fault kind it prints:
 
 - ``index MAE``: mean |index − true index| over the path's windows (median and worst unit);
-- ``others max``: the largest index any *other* component reads on that path (worst unit), and the share of windows
+- ``others max``: the largest (signed: false wear, not "better than new") index any *other* component reads on
+  that path (worst unit), and the share of windows
   where one reads above 0.15;
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
@@ -37,7 +40,7 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition.degradation import window_degradation
 from hydrowatch.condition.forecast import forecast_alert
 from hydrowatch.plant import PlantSimulator
-from hydrowatch.plant.excitation import duty_cycle
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import FAULTS
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec
 from hydrowatch.plant.paths import path_index
@@ -56,8 +59,8 @@ def _windows(out: dict[str, np.ndarray], i: int) -> np.ndarray:
     return np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1)
 
 
-def _commission(unit, seed: int) -> ConditionFeatures:
-    u = duty_cycle(300.0, VOLTS, seed=seed)
+def _commission(unit, seed: int, command: str) -> ConditionFeatures:
+    u = duty_cycle(300.0, VOLTS, seed=seed) if command == "duty" else filtered_noise(300.0, (0.0, 4.0), seed=seed)
     sim = PlantSimulator([unit], None, seed=seed)
     sim.settle(float(u[0]))
     out = sim.step(u[None, :])
@@ -79,19 +82,27 @@ def _concat(parts: list[dict]) -> E.ParityEstimates:
                                for field in ("severity", "mse", "curvature")))
 
 
-def run_unit(k: int, rng: np.random.Generator, hours: float) -> dict:
-    """One unit: commission, then seven machines over ``hours``; per fault the path's figures, and the healthy one."""
+def draw_unit(k: int, rng: np.random.Generator, hours: float) -> dict:
+    """Everything random about unit k: its parameters, commissioning seed, later day, paths and seeds."""
     unit = random_unit(rng)
-    features = _commission(unit, int(rng.integers(2**31)))
+    commission_seed = int(rng.integers(2**31))
     day = later_day(unit, rng)
     shape = "linear" if k % 2 == 0 else "exp"
     longest = min(120.0, (hours * 3600.0 - START_S) / 60.0)  # every path ends inside the run
     paths = {f: DegradationPath(f, START_S, float(rng.uniform(min(30.0, longest), longest)) * 60.0,
                                 final_drop=TO_INDEX * 0.3, shape=shape) for f in FAULTS}
+    return {"unit": unit, "commission_seed": commission_seed, "day": day, "shape": shape, "paths": paths,
+            "fleet_seed": int(rng.integers(2**31)), "command_seed": int(rng.integers(2**31))}
+
+
+def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
+    """One unit: commission, then seven machines over ``hours``; per fault the path's figures, and the healthy one."""
+    features = _commission(draw["unit"], draw["commission_seed"], command)
+    shape, paths = draw["shape"], draw["paths"]
     specs = [MachineSpec(f, path=p) for f, p in paths.items()] + [MachineSpec("healthy")]
-    fleet = Fleet(specs, nominal=day, seed=int(rng.integers(2**31)))
+    fleet = Fleet(specs, nominal=draw["day"], seed=draw["fleet_seed"])
     total = hours * 3600.0
-    u = duty_cycle(total, VOLTS, seed=int(rng.integers(2**31)))
+    u = duty_cycle(total, VOLTS, seed=draw["command_seed"])
     fleet.settle(float(u[0]))
     chunk = int(CHUNK_S * 200)
     valid: list[list[np.ndarray]] = [[] for _ in specs]
@@ -111,14 +122,18 @@ def run_unit(k: int, rng: np.random.Generator, hours: float) -> dict:
         ok = np.concatenate(valid[i])
         d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_)
         if spec.machine == "healthy":
-            soonest = [forecast_alert(t, d.value[f]).alert_in_s for f in FAULTS]
+            forecasts = {f: forecast_alert(t, d.value[f]) for f in FAULTS}
+            soonest = [f.alert_in_s for f in forecasts.values()]
             result["healthy_soonest_s"] = min((s for s in soonest if s is not None), default=None)
             result["healthy_max_index"] = float(max(np.nanmax(np.abs(d.value[f])) for f in FAULTS))
+            result["healthy"] = {f: {"max": float(np.nanmax(np.abs(d.value[f]))),
+                                     "p99": float(np.nanpercentile(np.abs(d.value[f]), 99)),
+                                     "forecast": forecasts[f].to_dict()} for f in FAULTS}
             continue
         fault, path = spec.machine, paths[spec.machine]
         truth = np.asarray(path_index(path, t + W / 400.0))
         v = d.value[fault]
-        others = np.nanmax(np.abs(np.stack([d.value[f] for f in FAULTS if f != fault])), axis=0)
+        others = np.nanmax(np.stack([d.value[f] for f in FAULTS if f != fault]), axis=0)  # false *wear*: signed
         row = {"duration_min": path.duration_s / 60.0, "mae": float(np.nanmean(np.abs(v - truth))),
                "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15))}
         now = int(np.argmax(truth >= 0.5))
@@ -148,15 +163,23 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--hours", type=float, default=2.0)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--commission", choices=("noise", "duty"), default="noise",
+                        help="commissioning recording: 300 s filtered noise 0-4 V (an identification run, default) "
+                             "or 300 s of the working duty cycle")
+    parser.add_argument("--only", type=int, default=None, help="run only unit K of the population (diagnosis)")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     units = []
     with threadpool_limits(1):
         for k in range(args.units):
+            draw = draw_unit(k, rng, args.hours)
+            if args.only is not None and k != args.only:
+                continue
             t0 = time.time()
-            units.append(run_unit(k, rng, args.hours))
+            units.append(run_unit(draw, args.hours, args.commission))
             print(f"unit {k}: {time.time() - t0:.0f} s", flush=True)
-    print(f"\n{args.units} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day")
+    print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
+          f"commissioned on {args.commission}")
     print(f"{'fault':14} {'index MAE med/worst':>20} {'others max':>10} {'>0.15':>7} {'fcst err med/worst':>19} "
           f"{'covered':>8} {'no fcst':>8}")
     for fault in FAULTS:

@@ -57,6 +57,8 @@ def test_a_replaced_part_starts_a_new_trend():
     assert f.alert_in_s == pytest.approx(truth, rel=0.1) and f.ci95[0] <= truth <= f.ci95[1]
     assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.75), np.full(10, 0.05)]) == 20
     assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.55)]) == 0  # a dip, not back near 0
+    burst = np.r_[np.zeros(30), np.full(4, 1.2), np.zeros(30)]  # four outlier windows are no part replaced
+    assert reset_start(burst) == 0
 
 
 def test_gaps_and_clock_jumps_count_as_operating_time():
@@ -79,6 +81,9 @@ def test_flat_or_short_histories_give_no_forecast():
         f = forecast_alert(t, _noisy(np.zeros(t.size), seed, outliers=0.02))
         assert f.alert_in_s is None or f.alert_in_s > 24 * 3600.0
         assert f.alert_in_s is None and f.reason is not None and f.reason.startswith("too flat")
+    tiny = 0.001 * np.expm1(6.0 * t / t[-1]) / np.expm1(6.0)  # noise-level curvature must not be extrapolated
+    f = forecast_alert(t, _noisy(tiny, 9, sigma=0.002))
+    assert f.alert_in_s is None and "rose" in f.reason
     f = forecast_alert(t[:6], np.linspace(0.1, 0.9, 6))
     assert f.alert_in_s is None and f.reason.startswith("too short") and f.to_dict()["ci95"] == [None, None]
     assert forecast_alert(t, np.full(t.size, np.nan)).reason.startswith("too short")

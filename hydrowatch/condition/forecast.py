@@ -8,8 +8,8 @@ with the windows' times. Not specific to the parity method: any index series on 
    forward one longer than ``max_gap_s``, counts as one window hop, since wear advances while the machine runs and
    a clock that jumps says nothing about how long it ran; shorter gaps count as they are.
 2. **Reset.** A part replaced shows as the index falling back near 0. The last point where the median of the next
-   :data:`RESET_RUN` indices is below :data:`RESET_NEAR_ZERO` and at least :data:`RESET_DROP` below the median of
-   the previous :data:`RESET_RUN` starts a new trend (:func:`reset_start`); nothing before it is used.
+   :data:`RESET_AFTER` indices is below :data:`RESET_NEAR_ZERO` and at least :data:`RESET_DROP` below the median
+   of the previous :data:`RESET_BEFORE` starts a new trend (:func:`reset_start`); nothing before it is used.
 3. **Robust points.** The segment is cut into at most :data:`BINS` bins of consecutive windows, each reduced to its
    mean time and *median* index, so isolated outliers do not move the fit.
 4. **Trend.** Least squares of I(t) = α + β·(e^{γ·(max(t, h) − t_now)} − 1)/γ over a grid of growth rates γ
@@ -23,8 +23,9 @@ with the windows' times. Not specific to the parity method: any index series on 
    correlation), each resample refitted with the same model selection and solved for an alert level drawn with
    the index's systematic error (:data:`ALERT_SD`): the index's own scale is known to a few percent only.
 6. **When not to forecast** (``alert_in_s`` None with a ``reason``): fewer than :data:`MIN_POINTS` windows or less
-   than ``min_span_s`` of operating time since the reset ("too short"); a rate whose 95 % interval reaches 0 or a
-   crossing further away than :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
+   than ``min_span_s`` of operating time since the reset ("too short"); a fitted rise over the segment below
+   :data:`MIN_RISE`, a rate whose 95 % interval reaches 0, or a crossing further away than
+   :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
 """
 
 from __future__ import annotations
@@ -38,8 +39,11 @@ from hydrowatch.errors import DataError
 
 ALERT = 1.0
 """Index at the alert level."""
-RESET_RUN = 5
-"""Windows whose median is compared before and after a candidate reset."""
+RESET_BEFORE = 12
+"""Windows (60 s) whose median is the level before a candidate reset: long enough that a burst of a few outlier
+windows (a look-alike blamed for a moment) does not pass for a worn part that was replaced."""
+RESET_AFTER = 6
+"""Windows whose median is the level after a candidate reset."""
 RESET_DROP = 0.25
 """Fall of the median index (a quarter of the alert) that marks a part replaced."""
 RESET_NEAR_ZERO = 0.2
@@ -54,6 +58,10 @@ GROWTH_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 """γ·span values tried (0: straight line); span = operating time covered by the segment."""
 BOOTSTRAP = 200
 """Bootstrap resamples of the interval."""
+MIN_RISE = 0.1
+"""Smallest rise of the fitted index over the segment that counts as wear (a fifth of the warning; the index's
+systematic error is 0.02 + 3 %): below it an exponential fitted to noise would extrapolate a healthy part to an
+alert (measured: a healthy valve_coil, level 0.001, forecast to alert in 2.2 h)."""
 HORIZON_FACTOR = 10.0
 """A crossing further than this × the segment's span is not forecast (extrapolation beyond what the data show)."""
 ALERT_SD = SYSTEMATIC[0] + SYSTEMATIC[1] * ALERT
@@ -142,19 +150,19 @@ def reset_start(index: np.ndarray) -> int:
         Valid indices in time order.
     """
     v = np.asarray(index, dtype=np.float64)
-    n, r = v.size, RESET_RUN
-    if n < 2 * r:
+    n, r, q = v.size, RESET_BEFORE, RESET_AFTER
+    if n < r + q:
         return 0
-    positions = np.arange(r, n - r + 1)
+    positions = np.arange(r, n - q + 1)
     before = np.array([np.median(v[i - r:i]) for i in positions])
-    after = np.array([np.median(v[i:i + r]) for i in positions])
+    after = np.array([np.median(v[i:i + q]) for i in positions])
     found = np.flatnonzero((after < RESET_NEAR_ZERO) & (before - after >= RESET_DROP))
     if not found.size:
         return 0
     run = [found[-1]]  # the last run of candidate positions; the step is where the means differ most
     while run[-1] - 1 in found:
         run.append(run[-1] - 1)
-    step = [np.mean(v[positions[k] - r:positions[k]]) - np.mean(v[positions[k]:positions[k] + r]) for k in run]
+    step = [np.mean(v[positions[k] - q:positions[k]]) - np.mean(v[positions[k]:positions[k] + q]) for k in run]
     return int(positions[run[int(np.argmax(step))]])
 
 
@@ -273,8 +281,10 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     if point == 0.0:
         return replace(fitted_now, alert_in_s=0.0, ci95=(0.0, ci[1] if ci[1] is not None else 0.0))
     low_rate = float(np.quantile(rates, 0.025))
-    if low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
-        why = ("the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
+    rise = alpha - float(np.min(fitted))
+    if rise < MIN_RISE or low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
+        why = (f"the index rose {rise:.3f} < {MIN_RISE:g} over the history" if rise < MIN_RISE
+               else "the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
                else f"the alert is further than {HORIZON_FACTOR:g}× the {span:.0f} s of history")
         return replace(fitted_now, reason=f"too flat: {why}")
     return replace(fitted_now, alert_in_s=float(point))
