@@ -122,7 +122,7 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         ok = np.concatenate(valid[i])
         d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_)
         if spec.machine == "healthy":
-            forecasts = {f: forecast_alert(t, d.value[f]) for f in FAULTS}
+            forecasts = {f: forecast_alert(t, d.history(f)) for f in FAULTS}
             soonest = [f.alert_in_s for f in forecasts.values()]
             result["healthy_soonest_s"] = min((s for s in soonest if s is not None), default=None)
             result["healthy_max_index"] = float(max(np.nanmax(np.abs(d.value[f])) for f in FAULTS))
@@ -139,7 +139,7 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         now = int(np.argmax(truth >= 0.5))
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
-        f = forecast_alert(t[: now + 1], v[: now + 1])
+        f = forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
         row.update(remaining_s=remaining, forecast_s=f.alert_in_s, ci95=list(f.ci95), model=f.model, reason=f.reason)
         row["forecast_err"] = None if f.alert_in_s is None else abs(f.alert_in_s - remaining) / remaining
         lo, hi = f.ci95

@@ -110,6 +110,11 @@ def test_index_on_a_simulated_unit_matches_the_true_speed_drop_and_its_interval_
         assert np.mean((d.low[fault] <= truth) & (truth <= d.high[fault])) >= 0.9, fault
         others = [f for f in FAULTS if f != fault]
         assert max(np.max(np.abs(d.value[f])) for f in others) < 0.15, fault
+    coil = features_degradation(features, windows[3])
+    assert coil.measured["valve_coil"].all() and coil.measured["load"].all()
+    for look_alike in ("pump_leak", "relief_spring", "valve_leak"):  # blamed on the coil: 0, and not history
+        assert not coil.measured[look_alike].any() and np.all(coil.value[look_alike] == 0.0)
+        assert np.isnan(coil.history(look_alike)).all()
     healthy = features_degradation(features, windows[0])
     assert max(np.max(np.abs(healthy.value[f])) for f in FAULTS) < 0.1
 

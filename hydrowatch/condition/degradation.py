@@ -149,12 +149,20 @@ def attributed_valve_fault(mse: Mapping[str, np.ndarray], valid: np.ndarray,
 class Degradation:
     """Index per fault and window with its 95 % interval: ``value``, ``low``, ``high``, each fault → (n,).
 
-    NaN where the window is invalid or the sensors cannot test the fault's relation.
+    NaN where the window is invalid or the sensors cannot test the fault's relation. ``measured`` (fault → bool
+    (n,)) is False where the value is not the part's own estimate: a valve-side part another one was blamed for
+    (it reads 0 there).
     """
 
     value: Mapping[str, np.ndarray]
     low: Mapping[str, np.ndarray]
     high: Mapping[str, np.ndarray]
+    measured: Mapping[str, np.ndarray]
+
+    def history(self, fault: str) -> np.ndarray:
+        """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,): what a forecast reads
+        (a look-alike blamed for a while is neither wear nor a part replaced)."""
+        return np.where(self.measured[fault], self.value[fault], np.nan)
 
     def window(self, i: int) -> dict[str, dict[str, float | list[float]]]:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only."""
@@ -184,6 +192,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
+    measured = {f: np.zeros(n, dtype=bool) for f in FAULTS}
     mse = {f: estimates.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
     blamed = (attributed_valve_fault({f: _spread(mse[f], valid) for f in parity.VALVE_HYPOTHESES}, valid, pool)
               if "valve" in relations and valid.any() else np.full(n, -1))
@@ -198,8 +207,11 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
             mine = blamed[valid] == parity.VALVE_HYPOTHESES.index(fault)
             lo, hi = np.where(mine, lo, np.minimum(0.0, lo)), np.where(mine, hi, np.maximum(0.0, hi))
             v = np.where(mine, v, 0.0)
+            measured[fault][valid] = mine
+        else:
+            measured[fault][valid] = True
         value[fault][valid], low[fault][valid], high[fault][valid] = v, lo, hi
-    return Degradation(value, low, high)
+    return Degradation(value, low, high, measured)
 
 
 def _spread(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -219,6 +231,6 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray,
     blocks = (features.window - 1) // parity.BLOCK
     if not valid.any():
         empty = {f: np.full(valid.size, np.nan) for f in FAULTS}
-        return Degradation(empty, empty, empty)
+        return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
     sig = window_signals(w[valid], features.sensors, p, features.viscosity_coefficient, p)
     return window_degradation(parity_estimates(sig, p), valid, p, blocks, features.relations_, pool)

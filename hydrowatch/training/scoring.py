@@ -121,9 +121,11 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
 def degradation_forecast(windows: list[dict[str, Any]], degradation: Degradation) -> dict[str, Any]:
     """``summary["forecast"]``: per fault, :func:`~hydrowatch.condition.forecast.forecast_alert` of its index over
     the recording's windows (``start_s``). Invalid windows have no index; ``unknown`` ones keep theirs (the index
-    is a physical estimate whatever the verdict, and an untrained fault wearing is exactly what must be forecast)."""
+    is a physical estimate whatever the verdict, and an untrained fault wearing is exactly what must be forecast);
+    windows where a valve-side look-alike was blamed are left out of that part's history
+    (:meth:`~hydrowatch.condition.degradation.Degradation.history`)."""
     t = np.array([w["start_s"] for w in windows])
-    return {f: forecast_alert(t, degradation.value[f]).to_dict() for f in degradation.value
+    return {f: forecast_alert(t, degradation.history(f)).to_dict() for f in degradation.value
             if np.isfinite(degradation.value[f]).any()}
 
 
