@@ -84,8 +84,12 @@ class Recording:
         return len(self) / SAMPLE_RATE_HZ
 
     def slice(self, start: int, stop: int) -> Recording:
-        """Samples ``start:stop`` as a new recording sharing the metadata."""
-        return Recording(self.t[start:stop], {k: v[start:stop] for k, v in self.channels.items()}, dict(self.meta))
+        """Samples ``start:stop`` as a new recording sharing the metadata (per-sample ``labels`` sliced with it)."""
+        meta = dict(self.meta)
+        labels = meta.get("labels")
+        if labels is not None and len(labels) == len(self.t):
+            meta["labels"] = labels[start:stop]
+        return Recording(self.t[start:stop], {k: v[start:stop] for k, v in self.channels.items()}, meta)
 
     @classmethod
     def from_columns(cls, columns: Mapping[str, np.ndarray], meta: Mapping[str, Any] | None = None) -> Recording:

@@ -11,6 +11,7 @@ from test_pipeline_online import scorer_round_trip
 from hydrowatch.cli import main
 from hydrowatch.io import write_recording
 from hydrowatch.plant.excitation import duty_cycle
+from hydrowatch.plant.faults import FAULTS
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.online import Chunk, OnlineScorer
@@ -99,3 +100,23 @@ def test_scorer_service_with_a_parity_bundle(parity: dict) -> None:
         assert rows[0]["window_end"] - rows[0]["window_start"] == pytest.approx(5.0)
     assert first_kl is not None and first_kl.batch.num_rows == 3 * len(STATES)
     assert set(first_kl.batch.column("sensor").to_pylist()) == {"load", "motor", "valve"}
+
+
+def test_parity_scores_give_a_degradation_index_per_fault_and_a_forecast(parity: dict) -> None:
+    bundle = ModelBundle.load(parity["out"])
+    expected = {"healthy": {}, "load_alert": {"load": 1.0}, "motor_leak_alert": {"motor_leak": 1.0},
+                "pump_leak_warning": {"pump_leak": 0.5}}
+    for r in parity["duty"]:
+        result = score_recording(bundle, r)
+        values = {f: np.array([w["degradation"][f]["value"] for w in result["windows"]]) for f in FAULTS}
+        for fault in FAULTS:
+            truth = expected[r.state].get(fault, 0.0)
+            tolerance = 0.15 if fault == "pump_leak" else 0.08  # pump leaks show only where the pump saturates
+            assert abs(np.median(values[fault]) - truth) < tolerance, (r.state, fault, np.median(values[fault]))
+        lo, hi = result["windows"][0]["degradation"]["load"]["ci95"]
+        assert lo <= result["windows"][0]["degradation"]["load"]["value"] <= hi
+        forecast = result["summary"]["forecast"]
+        assert set(forecast) == set(FAULTS)
+        assert all(set(f) >= {"alert_in_s", "ci95", "rate_per_h"} for f in forecast.values())
+        assert forecast["load"]["alert_in_s"] is None  # 60 s of a constant state: too short to forecast
+        json.dumps(result)

@@ -73,6 +73,7 @@ def test_score_json_on_a_separate_seed(trained: dict, capsys: pytest.CaptureFixt
         first = windows[0]
         assert set(first) >= {"start_s", "state", "probabilities", "kl"}
         assert set(first["kl"]) == {"flow", "speed", "torque"} and set(first["kl"]["speed"]) == set(STATES)
+        assert "degradation" not in first and "forecast" not in result["summary"]  # entropy: no physical estimate
         assert abs(sum(first["probabilities"].values()) - 1.0) < 1e-6
         judged += len(windows)
         right += sum(w["state"] == state for w in windows)

@@ -91,6 +91,22 @@ def test_fleet_refuses_bad_specs():
     assert Fleet(3).machine_ids == ["m00", "m01", "m02"]
 
 
+def test_degradation_path_from_a_worn_start_and_accelerating():
+    path = DegradationPath("load", start_s=10.0, duration_s=100.0, final_drop=0.36, start_drop=0.06, shape="exp")
+    t = np.array([0.0, 10.0, 60.0, 110.0, 500.0])
+    lam = np.log(10.0)  # the wear rate at the end is 10x the rate at the start
+    expected = 0.06 + 0.30 * np.expm1(lam * np.clip((t - 10.0) / 100.0, 0, 1)) / np.expm1(lam)
+    assert path.drop_at(t) == pytest.approx(expected)
+    assert path.drop_at(60.0) == pytest.approx(0.06 + 0.30 * (np.sqrt(10.0) - 1) / 9)
+    assert isinstance(path.drop_at(60.0), float) and path.top_drop == 0.36
+    fleet = Fleet([MachineSpec("w", path=path)], noise=False, seed=0)
+    assert fleet.drops[0] == pytest.approx(0.06) and fleet.states == ["healthy"]
+    with pytest.raises(ParameterError, match="shape"):
+        DegradationPath("load", 0.0, 10.0, shape="cubic")
+    with pytest.raises(ParameterError, match="start_drop"):
+        DegradationPath("load", 0.0, 10.0, start_drop=-0.1)
+
+
 def test_state_data_set_is_labelled_and_seeded_per_state():
     recs = list(simulate_states(["healthy", "pump_leak_alert"], seconds=4.0, seed=9))
     assert [r.state for r in recs] == ["healthy", "pump_leak_alert"]

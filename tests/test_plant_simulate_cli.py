@@ -74,6 +74,12 @@ def test_default_states_are_the_studys_seven(tmp_path):
         (["--command", "missing.csv"], "missing.csv"),
         (["--effects", "warp_drive"], "effect id must be one of"),
         (["--seconds", "-1"], "seconds must be"),
+        (["--degrade", "load:0:1"], "--degrade must have the form FAULT:FROM:TO:SECONDS"),
+        (["--degrade", "gearbox:0:1:60"], "--degrade FAULT must be one of"),
+        (["--degrade", "load:x:1:60"], "--degrade FROM must be a number. Got 'x'"),
+        (["--degrade", "load:0:5:60"], "--degrade TO must be an index in [0, 3.33)"),
+        (["--degrade", "load:0:1:-5"], "--degrade SECONDS must be > 0"),
+        (["--degrade", "load:0:1:60:cubic"], "--degrade shape must be one of"),
     ],
 )
 def test_bad_input_is_one_clean_line(tmp_path, capsys, args, message):
@@ -101,3 +107,29 @@ def test_a_model_saved_by_gap_drives_the_simulation(tmp_path, capsys):
     # A heavier brake plus drag: the machine runs slower and the shaft carries more torque.
     assert saved["speed"][-200:].mean() < 0.95 * plain["speed"][-200:].mean()
     assert saved["torque"][-200:].mean() > plain["torque"][-200:].mean() + 2.0
+
+
+def test_degrade_writes_a_part_wearing_labelled_per_sample(tmp_path, capsys):
+    from hydrowatch.plant.faults import speed_drop
+    from hydrowatch.plant.fleet import DegradationPath
+    from hydrowatch.plant.paths import parse_degradation, path_index
+
+    assert parse_degradation("valve_coil:0.2:1.2:600:exp") == DegradationPath(
+        "valve_coil", 0.0, 600.0, final_drop=0.36, start_drop=0.06, shape="exp")
+    hold = tmp_path / "hold.csv"  # 40 s at 2 V, where the index is defined
+    hold.write_text("t,voltage\n" + "".join(f"{k / 200:.3f},2.0\n" for k in range(8000)))
+    assert main(["simulate", "--out", str(tmp_path), "--degrade", "load:0:1.2:40", "--command", str(hold),
+                 "--no-noise", "--format", "parquet", "--seed", "4"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["states"] == [] and summary["degrade"] == ["load:0:1.2:40"]
+    rec = read_recording(tmp_path / "degrade_load.parquet")
+    assert len(rec) == 8000
+    labels = rec.meta["labels"]
+    assert labels[0] == "healthy" and labels[-1] == "load_alert" and "load_warning" in set(labels)
+    # at a constant 2 V the speed falls as the index says: drop = index x 0.30
+    speed = rec["speed"]
+    path = parse_degradation("load:0:1.2:40")
+    for t in (20.0, 39.0):
+        i = int(t * 200)
+        assert 1.0 - speed[i] / speed[200] == pytest.approx(0.30 * path_index(path, t), abs=0.02)
+    assert speed_drop("load", 0.0) == 0.0

@@ -186,6 +186,31 @@ def severity_for_speed_drop(fault: str, drop: float, nominal: PlantParameters | 
     return _severity_for_drop(fault, d, nominal if nominal is not None else PlantParameters())
 
 
+TABLE_POINTS = 101
+"""Points of a :func:`speed_drop_table`."""
+
+
+@lru_cache(maxsize=256)
+def speed_drop_table(fault: str, top_drop: float, nominal: PlantParameters) -> tuple[np.ndarray, np.ndarray]:
+    """(speed drops, severities), shape (:data:`TABLE_POINTS`,) each: one fault on one machine, severity 0 to the
+    severity of ``top_drop``, evenly spaced in severity; drops made monotone (running maximum) so that either
+    column can be interpolated in the other. Cached per (fault, top_drop, nominal).
+
+    Parameters
+    ----------
+    fault : str
+        One of :data:`FAULTS`.
+    top_drop : float
+        Largest fractional speed drop at 2 V in the table, in (0, 1).
+    nominal : PlantParameters
+        The healthy machine.
+    """
+    top = severity_for_speed_drop(fault, top_drop, nominal)
+    severity = np.linspace(0.0, top, TABLE_POINTS)
+    drop = np.maximum.accumulate([speed_drop(fault, s, nominal) for s in severity])
+    return drop, severity
+
+
 def level_severity(fault: str, level: str, nominal: PlantParameters | None = None) -> float:
     """Severity of a named level: warning (15 % speed drop at 2 V) or alert (30 %).
 

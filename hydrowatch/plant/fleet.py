@@ -2,7 +2,8 @@
 
 Each machine has a healthy parameter set (the nominal one, optionally scattered by a few percent
 as manufacturing spread), a fixed health state or a :class:`DegradationPath` (a fault whose speed
-drop at 2 V grows linearly over hours, so a fleet shows faults appearing), and its own effects.
+drop at 2 V grows, linearly or accelerating, over minutes to hours, so a fleet shows faults appearing),
+and its own effects.
 All machines advance together in one :class:`~hydrowatch.plant.simulator.PlantSimulator`.
 Degradation is applied every ``update_seconds`` of simulated time (parameters change between
 samples, never inside one); labels follow the nearest named level of the current speed drop
@@ -14,7 +15,6 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -29,8 +29,7 @@ from hydrowatch.plant.faults import (
     level_for_speed_drop,
     level_severity,
     parse_state,
-    severity_for_speed_drop,
-    speed_drop,
+    speed_drop_table,
     state_name,
     state_parameters,
 )
@@ -43,9 +42,6 @@ SCATTERED_PARAMETERS: tuple[str, ...] = (
     "JL", "BL", "TL",
 )
 """Parameters that differ between machines of one build (manufacturing spread)."""
-
-_TABLE_POINTS = 101
-
 
 def scatter_parameters(nominal: PlantParameters, spread: float, rng: np.random.Generator) -> PlantParameters:
     """A machine of the same build: each of :data:`SCATTERED_PARAMETERS` times U(1 − spread, 1 + spread).
@@ -65,26 +61,40 @@ def scatter_parameters(nominal: PlantParameters, spread: float, rng: np.random.G
     return nominal.replace(**{name: getattr(nominal, name) * f for name, f in zip(SCATTERED_PARAMETERS, factors)})
 
 
+SHAPES: tuple[str, ...] = ("linear", "exp")
+"""How a :class:`DegradationPath`'s speed drop moves from its start to its end value."""
+EXP_GROWTH = float(np.log(10.0))
+"""λ of the ``exp`` shape: drop = from + (to − from)·(e^{λx} − 1)/(e^λ − 1), x the elapsed fraction; the wear rate
+at the end is e^λ = 10× the rate at the start (accelerating wear, as a seal or bearing that wears faster the more
+it has worn)."""
+
+
 @dataclass(frozen=True)
 class DegradationPath:
-    """A fault developing over time: its speed drop at 2 V grows linearly from 0 to ``final_drop``.
+    """A fault developing over time: its speed drop at 2 V moves from ``start_drop`` to ``final_drop``.
 
     Attributes
     ----------
     fault : str
         One of :data:`hydrowatch.plant.faults.FAULTS`.
     start_s : float
-        Time the wear starts, s (fleet time).
+        Time the wear starts, s (fleet time); the drop is ``start_drop`` before it.
     duration_s : float
         Time from start to ``final_drop``, s (hours: e.g. 4·3600).
     final_drop : float, default 0.30
         Speed drop reached at the end and held afterwards, fraction (0.30 = the study's alert).
+    start_drop : float, default 0.0
+        Speed drop at and before ``start_s``, fraction (0 = as new).
+    shape : {"linear", "exp"}, default "linear"
+        ``linear``: constant wear rate; ``exp``: accelerating wear (:data:`EXP_GROWTH`).
     """
 
     fault: str
     start_s: float
     duration_s: float
     final_drop: float = 0.30
+    start_drop: float = 0.0
+    shape: str = "linear"
 
     def __post_init__(self) -> None:
         if self.fault not in FAULTS:
@@ -95,10 +105,24 @@ class DegradationPath:
             )
         if not 0.0 < self.final_drop < 1.0:
             raise ParameterError(f"degradation final_drop must be in (0, 1). Got {self.final_drop!r}.")
+        if not 0.0 <= self.start_drop < 1.0:
+            raise ParameterError(f"degradation start_drop must be in [0, 1). Got {self.start_drop!r}.")
+        if self.shape not in SHAPES:
+            raise ParameterError(f"degradation shape must be one of {list(SHAPES)}. Got {self.shape!r}.")
 
-    def drop_at(self, t: float) -> float:
-        """Speed drop at time t, s (0 before ``start_s``, ``final_drop`` after the end)."""
-        return self.final_drop * float(np.clip((t - self.start_s) / self.duration_s, 0.0, 1.0))
+    @property
+    def top_drop(self) -> float:
+        """Largest speed drop along the path, fraction."""
+        return max(self.start_drop, self.final_drop)
+
+    def drop_at(self, t: float | np.ndarray) -> float | np.ndarray:
+        """Speed drop at time t, s (``start_drop`` before ``start_s``, ``final_drop`` after the end); float for a
+        float, an array for an array."""
+        x = np.clip((np.asarray(t, dtype=np.float64) - self.start_s) / self.duration_s, 0.0, 1.0)
+        if self.shape == "exp":
+            x = np.expm1(EXP_GROWTH * x) / np.expm1(EXP_GROWTH)
+        drop = self.start_drop + (self.final_drop - self.start_drop) * x
+        return float(drop) if drop.ndim == 0 else drop
 
 
 @dataclass(frozen=True)
@@ -129,15 +153,6 @@ class MachineSpec:
         if not self.machine or "/" in self.machine:
             raise ParameterError(f"machine id must be non-empty without '/'. Got {self.machine!r}.")
         parse_state(self.state)
-
-
-@lru_cache(maxsize=256)
-def _severity_table(fault: str, final_drop: float, healthy: PlantParameters) -> tuple[np.ndarray, np.ndarray]:
-    """(speed drops, severities), shape (101,) each: a monotone table of one fault on one machine."""
-    top = severity_for_speed_drop(fault, final_drop, healthy)
-    severity = np.linspace(0.0, top, _TABLE_POINTS)
-    drop = np.maximum.accumulate([speed_drop(fault, s, healthy) for s in severity])
-    return drop, severity
 
 
 class Fleet:
@@ -195,7 +210,7 @@ class Fleet:
         self.healthy = [scatter_parameters(design, scatter, rng) if scatter else design for _ in specs]
         """Each machine's healthy parameters (after scatter)."""
         self._tables = [
-            _severity_table(s.path.fault, s.path.final_drop, h) if s.path is not None else None
+            speed_drop_table(s.path.fault, s.path.top_drop, h) if s.path is not None else None
             for s, h in zip(specs, self.healthy)
         ]
         self._drops = np.zeros(len(specs))
@@ -245,7 +260,7 @@ class Fleet:
             _, level = parse_state(spec.state)
             self._drops[index] = 0.0 if level is None else LEVELS[level]
             return state_parameters(spec.state, healthy)
-        drop = spec.path.drop_at(t)
+        drop = float(spec.path.drop_at(t))
         self._drops[index] = drop
         severity = float(np.interp(drop, *table))
         return fault_parameters(healthy, spec.path.fault, severity) if drop > 0 else healthy

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import windows_from_recording
+from hydrowatch.condition.degradation import Degradation, features_degradation
+from hydrowatch.condition.forecast import forecast_alert
 from hydrowatch.condition.stream import POOLED_WINDOWS
 from hydrowatch.errors import ParameterError
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
@@ -64,9 +66,12 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
 
     ``windows[i]`` has ``start_s`` (time of its first sample, s), ``state``, ``probability``,
     ``probabilities`` (state → p), ``kl`` (sensor → state → relative entropy, nats) and, for
-    ``invalid``/``unknown`` windows, ``reason``; ``truth`` when the recording is labelled.
+    ``invalid``/``unknown`` windows, ``reason``; ``truth`` when the recording is labelled; parity bundles add
+    ``degradation`` (fault → ``{"value", "ci95"}``, the index of :mod:`hydrowatch.condition.degradation`) to every
+    window that is not ``invalid``.
     ``summary`` has ``windows``, ``counts`` (state → n), ``accuracy`` (None when unlabelled),
-    ``model_version``.
+    ``model_version`` and, for parity bundles, ``forecast`` (fault → :meth:`Forecast.to_dict
+    <hydrowatch.condition.forecast.Forecast.to_dict>`, :func:`degradation_forecast`).
     """
     if int(smoothing) != smoothing or smoothing < 1 or (smoothing > 1 and bundle.condition is None):
         raise ParameterError(f"smoothing must be an integer >= 1, and 1 for an entropy bundle. Got {smoothing!r} "
@@ -76,6 +81,7 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
     t = recording.t
     windows: list[dict[str, Any]] = []
     have = max(0, len(recording) - warmup)
+    degradation: Degradation | None = None
     if have < window:
         windows.append({
             "start_s": float(t[0]) if len(t) else 0.0, "state": INVALID, "probability": None, "probabilities": {},
@@ -84,7 +90,7 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
         })
         truths: list[str | None] = [None]
     else:
-        starts, verdicts, kl = _window_scores(bundle, recording, smoothing)
+        starts, verdicts, kl, degradation = _window_scores(bundle, recording, smoothing)
         truths = window_truth(recording, starts + warmup, window, bundle.states)
         for i, (start, verdict) in enumerate(zip(starts.tolist(), verdicts)):
             item: dict[str, Any] = {"start_s": float(t[start + warmup]), **verdict.to_dict()}
@@ -93,9 +99,14 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
             item["kl"] = {} if verdict.state == INVALID else {
                 s: {k: float(kl[i, j, m]) for m, k in enumerate(bundle.states)} for j, s in enumerate(bundle.kl_rows)
             }
+            if degradation is not None and verdict.state != INVALID:
+                item["degradation"] = degradation.window(i)
             if truths[i] is not None:
                 item["truth"] = truths[i]
             windows.append(item)
+    summary_extra: dict[str, Any] = {}
+    if degradation is not None:
+        summary_extra["forecast"] = degradation_forecast(windows, degradation)
     counts = Counter(w["state"] for w in windows)
     judged = [(w["state"], truth) for w, truth in zip(windows, truths) if truth is not None and w["state"] != INVALID]
     accuracy = float(np.mean([p == tr for p, tr in judged])) if judged else None
@@ -103,25 +114,38 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
         "source": str(recording.meta.get("source", "")),
         "windows": windows,
         "summary": {"windows": len(windows), "counts": dict(counts), "accuracy": accuracy,
-                    "model_version": bundle.version},
+                    "model_version": bundle.version, **summary_extra},
     }
 
 
+def degradation_forecast(windows: list[dict[str, Any]], degradation: Degradation) -> dict[str, Any]:
+    """``summary["forecast"]``: per fault, :func:`~hydrowatch.condition.forecast.forecast_alert` of its index over
+    the recording's windows (``start_s``). Invalid windows have no index; ``unknown`` ones keep theirs (the index
+    is a physical estimate whatever the verdict, and an untrained fault wearing is exactly what must be forecast);
+    windows where a valve-side look-alike was blamed are left out of that part's history
+    (:meth:`~hydrowatch.condition.degradation.Degradation.history`)."""
+    t = np.array([w["start_s"] for w in windows])
+    return {f: forecast_alert(t, degradation.history(f)).to_dict() for f in degradation.value
+            if np.isfinite(degradation.value[f]).any()}
+
+
 def _window_scores(bundle: ModelBundle, recording: Recording,
-                   smoothing: int = 1) -> tuple[np.ndarray, list[Verdict], np.ndarray]:
-    """Window starts (after the warm-up), verdicts and ``kl`` scores, shape (n_windows, n_rows, n_states)."""
+                   smoothing: int = 1) -> tuple[np.ndarray, list[Verdict], np.ndarray, Degradation | None]:
+    """Window starts (after the warm-up), verdicts, ``kl`` scores, shape (n_windows, n_rows, n_states), and the
+    degradation index of parity bundles (None for entropy bundles: no physical estimate, docs/degradation.md)."""
     if bundle.condition is not None:
         model = bundle.condition
         temperature = bool(bundle.manifest.get("temperature")) and "temperature" in recording.channels
         raw = windows_from_recording(recording, bundle.window, bundle.hop, temperature=temperature)
         verdicts, scores = model.judge_with_scores(raw, smoothing)  # one pass for verdicts and kl scores
         starts = model.features_.window_starts(len(recording))
-        return starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states))
+        return (starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states)),
+                features_degradation(model.features_, raw))
     health = bundle.health
     assert health is not None
     errors = bundle.errors(recording)[bundle.warmup:]
     starts, verdicts = health.score(errors)
-    return starts, verdicts, health.features_.window_entropies(errors)
+    return starts, verdicts, health.features_.window_entropies(errors), None
 
 
 def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:

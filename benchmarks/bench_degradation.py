@@ -1,0 +1,203 @@
+"""Degradation index and forecast on parts wearing out, on units that did not tune them (issue 15).
+
+Each unit draws every nominal parameter (``hydrowatch.plant.population.random_unit``: ±20 %, leakages and damping
+±50 %, sensor noise 1–3× the default). It is commissioned on 300 s of its own healthy operation
+(``ConditionFeatures().fit({"healthy": …})``: the unit's nominal parameters are identified, as ``hydrowatch
+commission`` does): filtered noise 0–4 V by default (an identification run), or its working duty cycle
+(``--commission duty``, which leaves the pump and relief to the prior: docs/unseen-units.md). It then runs on a
+**later day** (``later_day``: leakages, load and damping drifted ±3–5 %) for
+``--hours`` on a working duty cycle (holds, ramps, steps over 0.5–3.5 V) as seven machines: six each with one part
+wearing from index 0 to 1.3 (beyond the alert) over 30–120 minutes (drawn per path, starting after 2 minutes),
+linear on even units and accelerating (``exp``) on odd ones, and one healthy machine.
+
+Per fault kind it prints:
+
+- ``index MAE``: mean |index − true index| over the path's windows (median and worst unit);
+- ``others max``: the largest (signed: false wear, not "better than new") index any *other* component reads on
+  that path (worst unit), and the share of windows
+  where one reads above 0.15;
+- ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
+  |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
+  (``None`` forecasts count as wrong and not covered);
+- the healthy machine: the shortest ``alert_in_s`` any component forecasts after ``--hours`` (None: none).
+
+Run: ``python benchmarks/bench_degradation.py [--units 8] [--seed 2026] [--hours 2] [--json OUT]``. The population
+of ``--seed 7`` tuned the constants of hydrowatch/condition/degradation.py and forecast.py during development;
+report on another seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from hydrowatch.condition import ConditionFeatures
+from hydrowatch.condition import estimates as E
+from hydrowatch.condition.degradation import window_degradation
+from hydrowatch.condition.forecast import forecast_alert
+from hydrowatch.plant import PlantSimulator
+from hydrowatch.plant.excitation import duty_cycle, filtered_noise
+from hydrowatch.plant.faults import FAULTS
+from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec
+from hydrowatch.plant.paths import path_index
+from hydrowatch.plant.population import later_day, random_unit
+
+CHANNELS = ("voltage", "flow", "speed", "torque")
+W = 1000
+VOLTS = (0.5, 3.5)
+CHUNK_S = 300.0
+TO_INDEX = 1.3
+START_S = 120.0
+
+
+def _windows(out: dict[str, np.ndarray], i: int) -> np.ndarray:
+    n = out["t"].shape[1] // W * W
+    return np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1)
+
+
+def _commission(unit, seed: int, command: str) -> ConditionFeatures:
+    u = duty_cycle(300.0, VOLTS, seed=seed) if command == "duty" else filtered_noise(300.0, (0.0, 4.0), seed=seed)
+    sim = PlantSimulator([unit], None, seed=seed)
+    sim.settle(float(u[0]))
+    out = sim.step(u[None, :])
+    out = {k: v if v.ndim == 2 else v[None, :] for k, v in out.items()}
+    return ConditionFeatures().fit({"healthy": _windows(out, 0)})
+
+
+def _estimates(features: ConditionFeatures, windows: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Valid mask and the free parity fits of one chunk's windows (kept small: the signals are dropped)."""
+    valid = np.array([r is None for r in features.window_reasons(windows)], dtype=bool)
+    p = features.nominal_
+    sig = E.window_signals(windows[valid], features.sensors, p, features.viscosity_coefficient, p)
+    est = E.parity_estimates(sig, p)
+    return valid, {"severity": dict(est.severity), "mse": dict(est.mse), "curvature": dict(est.curvature)}
+
+
+def _concat(parts: list[dict]) -> E.ParityEstimates:
+    return E.ParityEstimates(*({k: np.concatenate([p[field][k] for p in parts]) for k in parts[0][field]}
+                               for field in ("severity", "mse", "curvature")))
+
+
+def draw_unit(k: int, rng: np.random.Generator, hours: float) -> dict:
+    """Everything random about unit k: its parameters, commissioning seed, later day, paths and seeds."""
+    unit = random_unit(rng)
+    commission_seed = int(rng.integers(2**31))
+    day = later_day(unit, rng)
+    shape = "linear" if k % 2 == 0 else "exp"
+    longest = min(120.0, (hours * 3600.0 - START_S) / 60.0)  # every path ends inside the run
+    paths = {f: DegradationPath(f, START_S, float(rng.uniform(min(30.0, longest), longest)) * 60.0,
+                                final_drop=TO_INDEX * 0.3, shape=shape) for f in FAULTS}
+    return {"unit": unit, "commission_seed": commission_seed, "day": day, "shape": shape, "paths": paths,
+            "fleet_seed": int(rng.integers(2**31)), "command_seed": int(rng.integers(2**31))}
+
+
+def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
+    """One unit: commission, then seven machines over ``hours``; per fault the path's figures, and the healthy one."""
+    features = _commission(draw["unit"], draw["commission_seed"], command)
+    shape, paths = draw["shape"], draw["paths"]
+    specs = [MachineSpec(f, path=p) for f, p in paths.items()] + [MachineSpec("healthy")]
+    fleet = Fleet(specs, nominal=draw["day"], seed=draw["fleet_seed"])
+    total = hours * 3600.0
+    u = duty_cycle(total, VOLTS, seed=draw["command_seed"])
+    fleet.settle(float(u[0]))
+    chunk = int(CHUNK_S * 200)
+    valid: list[list[np.ndarray]] = [[] for _ in specs]
+    fits: list[list[dict]] = [[] for _ in specs]
+    starts: list[np.ndarray] = []
+    for a in range(0, u.size, chunk):
+        out = fleet.step(u[a:a + chunk])
+        starts.append(out["t"][0, : out["t"].shape[1] // W * W : W])
+        for i in range(len(specs)):
+            ok, est = _estimates(features, _windows(out, i))
+            valid[i].append(ok)
+            fits[i].append(est)
+    t = np.concatenate(starts)
+    blocks = (W - 1) // E.parity.BLOCK
+    result: dict = {"shape": shape, "paths": {}}
+    for i, spec in enumerate(specs):
+        ok = np.concatenate(valid[i])
+        d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_)
+        if spec.machine == "healthy":
+            forecasts = {f: forecast_alert(t, d.history(f)) for f in FAULTS}
+            soonest = [f.alert_in_s for f in forecasts.values()]
+            result["healthy_soonest_s"] = min((s for s in soonest if s is not None), default=None)
+            result["healthy_max_index"] = float(max(np.nanmax(np.abs(d.value[f])) for f in FAULTS))
+            result["healthy"] = {f: {"max": float(np.nanmax(np.abs(d.value[f]))),
+                                     "p99": float(np.nanpercentile(np.abs(d.value[f]), 99)),
+                                     "forecast": forecasts[f].to_dict()} for f in FAULTS}
+            continue
+        fault, path = spec.machine, paths[spec.machine]
+        truth = np.asarray(path_index(path, t + W / 400.0))
+        v = d.value[fault]
+        others = np.nanmax(np.stack([d.value[f] for f in FAULTS if f != fault]), axis=0)  # false *wear*: signed
+        row = {"duration_min": path.duration_s / 60.0, "mae": float(np.nanmean(np.abs(v - truth))),
+               "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15))}
+        now = int(np.argmax(truth >= 0.5))
+        t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
+        remaining = t_alert - (t[now] + W / 400.0)
+        f = forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
+        row.update(remaining_s=remaining, forecast_s=f.alert_in_s, ci95=list(f.ci95), model=f.model, reason=f.reason)
+        row["forecast_err"] = None if f.alert_in_s is None else abs(f.alert_in_s - remaining) / remaining
+        lo, hi = f.ci95
+        row["covered"] = f.alert_in_s is not None and (lo or 0.0) <= remaining <= (hi if hi is not None else np.inf)
+        result["paths"][fault] = row
+    return result
+
+
+def _fraction_at(x: float, shape: str) -> float:
+    """Elapsed fraction of a path at which its drop fraction reaches x (inverse of the path's shape)."""
+    if shape == "linear":
+        return x
+    from hydrowatch.plant.fleet import EXP_GROWTH
+
+    return float(np.log1p(x * np.expm1(EXP_GROWTH)) / EXP_GROWTH)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--hours", type=float, default=2.0)
+    parser.add_argument("--json", default=None)
+    parser.add_argument("--commission", choices=("noise", "duty"), default="noise",
+                        help="commissioning recording: 300 s filtered noise 0-4 V (an identification run, default) "
+                             "or 300 s of the working duty cycle")
+    parser.add_argument("--only", type=int, default=None, help="run only unit K of the population (diagnosis)")
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    units = []
+    with threadpool_limits(1):
+        for k in range(args.units):
+            draw = draw_unit(k, rng, args.hours)
+            if args.only is not None and k != args.only:
+                continue
+            t0 = time.time()
+            units.append(run_unit(draw, args.hours, args.commission))
+            print(f"unit {k}: {time.time() - t0:.0f} s", flush=True)
+    print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
+          f"commissioned on {args.commission}")
+    print(f"{'fault':14} {'index MAE med/worst':>20} {'others max':>10} {'>0.15':>7} {'fcst err med/worst':>19} "
+          f"{'covered':>8} {'no fcst':>8}")
+    for fault in FAULTS:
+        rows = [u["paths"][fault] for u in units]
+        mae = np.array([r["mae"] for r in rows])
+        err = np.array([np.inf if r["forecast_err"] is None else r["forecast_err"] for r in rows])
+        print(f"{fault:14} {np.median(mae):9.3f} / {mae.max():.3f} {max(r['others_max'] for r in rows):10.3f} "
+              f"{max(r['others_share'] for r in rows):7.1%} {np.median(err):9.1%} / {err.max():6.1%} "
+              f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d}")
+    soonest = [u["healthy_soonest_s"] for u in units]
+    finite = [s for s in soonest if s is not None]
+    print(f"healthy {args.hours:g} h: soonest forecast alert "
+          f"{'none' if not finite else f'{min(finite) / 3600:.1f} h'} ({len(finite)} of {len(units)} units forecast "
+          f"one); largest |index| {max(u['healthy_max_index'] for u in units):.3f}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"seed": args.seed, "units": units, "hours": args.hours}, fh, indent=1, default=str)
+
+
+if __name__ == "__main__":
+    main()

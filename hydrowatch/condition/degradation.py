@@ -1,0 +1,236 @@
+"""Degradation index per component and window: how far each part has worn, in units of the alert (issue 15).
+
+The index of fault ``f`` in a window is the fractional drop of the steady gearbox speed at 2 V that the
+component's estimated condition would cause on its own, on this unit, divided by the alert drop:
+
+    I_f = (1 − ωg(θ0 with f at ŝ_f) / ωg(θ0)) / 0.30        (study Sections 5.3, 6.1: warning 15 %, alert 30 %)
+
+θ0 is the unit's own nominal parameters (identified at training or commissioning,
+:mod:`hydrowatch.condition.unit`), ŝ_f the window's parity estimate of the fault's severity
+(:mod:`hydrowatch.condition.estimates`; study Eqs. 2.1–2.5 as relations). So 0 = as commissioned, 0.5 = warning,
+1.0 = alert, above 1 beyond it; slightly negative values are noise around a part as good as new (kept, so that
+averages stay unbiased). The map ŝ → I is a monotone table per (fault, unit)
+(:func:`hydrowatch.plant.faults.speed_drop_table`), linearly extrapolated beyond it.
+
+**Interval.** Each relation's fit gives MSE(s) = MSE_min + c·(s − ŝ)² (``ParityEstimates.curvature``), so for
+N residual blocks the least-squares standard error is se(ŝ) = √(MSE_min / ((N − 1)·c)) (the Gauss-Newton
+covariance; exact for the linear relations). The block residuals are not independent (the misfit of a unit whose
+parameters drifted since commissioning is slow), so se is multiplied by :data:`SE_INFLATION`. The 95 % interval
+ŝ ± 1.96·se is mapped through the same monotone table (which keeps its coverage), then widened by the systematic
+error of the unit's own nominal parameters (:data:`SYSTEMATIC`, :func:`widened`): on simulated units the
+statistical part alone is 10× too narrow for load and motor_leak, whose fits are precise but biased by a few
+percent (docs/degradation.md).
+
+**Which valve-side part.** The four valve-side faults (pump_leak, relief_spring, valve_coil, valve_leak) are
+separate one-parameter hypotheses of one relation; in a hold at one command several explain a window equally
+(docs/command-invariance.md). The hypothesis with the smallest summed log-MSE over the machine's last
+:data:`ATTRIBUTION_WINDOWS` valid windows is the worn part and gets its index; the others read 0 with an
+interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). load and
+motor_leak have their own relations and are always estimated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydrowatch.condition import parity
+from hydrowatch.condition.estimates import ParityEstimates, check_windows, parity_estimates, window_signals
+from hydrowatch.condition.features import RELATION_OF, ConditionFeatures
+from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
+from hydrowatch.plant.parameters import PlantParameters
+
+ALERT_DROP = LEVELS["alert"]
+"""Speed drop at 2 V that the index divides by: 1.0 = alert."""
+TABLE_DROP = 0.6
+"""Largest speed drop tabulated (index 2); beyond it the table is extrapolated linearly."""
+Z95 = 1.959963984540054
+"""Two-sided 95 % normal quantile."""
+SE_INFLATION = 2.0
+"""Factor on the least-squares standard error for the block residuals' correlation (docs/degradation.md)."""
+ATTRIBUTION_WINDOWS = 60
+"""Valid windows (300 s) whose valve-relation fits decide which valve-side part wears. Wear is slow against five
+minutes; the verdicts' 12-window pool left a third of a duty cycle's windows of a valve_leak or relief_spring unit
+blamed on a look-alike, 60 windows none on two of three tuning units (docs/degradation.md)."""
+SYSTEMATIC = (0.02, 0.03)
+"""Standard deviation of the index's systematic error, absolute + relative to the index: the commissioned nominal
+parameters are themselves estimates and a later day drifts leakages, load and damping by ±3–5 % (on tuning units,
+healthy load indices of −0.02 to −0.03 and index errors of 3–5 % at alert). Added in quadrature to the interval."""
+INDEX_CAP = 10.0
+"""Interval bounds are clipped to ±INDEX_CAP: a bound there means the window does not determine the part (a flat
+fit, such as relief_spring while the relief never cracks)."""
+
+
+def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantParameters) -> np.ndarray:
+    """Index I = speed drop at 2 V / 0.30 of severities ŝ of one fault on one unit (module docstring).
+
+    Parameters
+    ----------
+    fault : str
+        One of :data:`~hydrowatch.plant.faults.FAULTS`.
+    severity : array_like
+        Severity on the fault's scale (:mod:`hydrowatch.plant.faults`), any shape; negative: better than nominal.
+    nominal : PlantParameters
+        The unit's own healthy parameters.
+
+    Returns
+    -------
+    ndarray, shape of ``severity``
+        Index, dimensionless (NaN where the severity is NaN).
+    """
+    drop, sev = speed_drop_table(fault, TABLE_DROP, nominal)
+    s = np.asarray(severity, dtype=np.float64)
+    value = np.interp(s, sev, drop)
+    low_slope = (drop[1] - drop[0]) / (sev[1] - sev[0])
+    high_slope = (drop[-1] - drop[-2]) / (sev[-1] - sev[-2])
+    value = np.where(s < sev[0], drop[0] + low_slope * (s - sev[0]), value)
+    value = np.where(s > sev[-1], drop[-1] + high_slope * (s - sev[-1]), value)
+    return np.asarray(value / ALERT_DROP)
+
+
+def severity_standard_error(mse: np.ndarray, curvature: np.ndarray, blocks: int,
+                            inflation: float = SE_INFLATION) -> np.ndarray:
+    """Standard error of a one-parameter fit's severity, shape (m,): inflation·√(MSE_min / ((N − 1)·c)).
+
+    Parameters
+    ----------
+    mse : ndarray, shape (m,)
+        Minimum mean squared block residual of the fit (its relation's unit squared).
+    curvature : ndarray, shape (m,)
+        d(MSE)/d(s²) at the fit (same unit per severity²); 0 or negative gives an infinite error.
+    blocks : int
+        Residual blocks N per window ((window − 1) // :data:`hydrowatch.condition.parity.BLOCK`).
+    inflation : float, default :data:`SE_INFLATION`
+        Factor for correlated residuals.
+    """
+    c = np.asarray(curvature, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = inflation * np.sqrt(np.asarray(mse, dtype=np.float64) / (max(blocks - 1, 1) * c))
+    return np.where(c > 0.0, se, np.inf)
+
+
+def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A statistical 95 % interval of the index widened by :data:`SYSTEMATIC` in quadrature and clipped to
+    ±:data:`INDEX_CAP`, each shape (m,)."""
+    sys = Z95 * (SYSTEMATIC[0] + SYSTEMATIC[1] * np.abs(value))
+    with np.errstate(invalid="ignore"):
+        lo = value - np.sqrt((value - low) ** 2 + sys**2)
+        hi = value + np.sqrt((high - value) ** 2 + sys**2)
+    return np.clip(np.nan_to_num(lo, nan=-INDEX_CAP), -INDEX_CAP, INDEX_CAP), np.clip(
+        np.nan_to_num(hi, nan=INDEX_CAP), -INDEX_CAP, INDEX_CAP)
+
+
+def attributed_valve_fault(mse: Mapping[str, np.ndarray], valid: np.ndarray,
+                           pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:
+    """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
+
+    The hypothesis with the smallest Σ log MSE over the window and the ``pool − 1`` valid windows before it (one
+    machine's consecutive windows); −1 for invalid windows.
+
+    Parameters
+    ----------
+    mse : mapping of fault to ndarray, shape (n,)
+        Each valve hypothesis's minimum MSE per window, (L/min)² (NaN where invalid).
+    valid : ndarray of bool, shape (n,)
+    pool : int, default :data:`ATTRIBUTION_WINDOWS`
+    """
+    logs = np.stack([np.log(np.maximum(mse[f][valid], 1e-300)) for f in parity.VALVE_HYPOTHESES], axis=1)
+    cum = np.vstack([np.zeros((1, logs.shape[1])), np.cumsum(logs, axis=0)])
+    k = np.arange(1, logs.shape[0] + 1)
+    pooled = cum[k] - cum[np.maximum(k - pool, 0)]
+    out = np.full(valid.size, -1, dtype=np.int64)
+    out[valid] = np.argmin(pooled, axis=1)
+    return out
+
+
+@dataclass(frozen=True)
+class Degradation:
+    """Index per fault and window with its 95 % interval: ``value``, ``low``, ``high``, each fault → (n,).
+
+    NaN where the window is invalid or the sensors cannot test the fault's relation. ``measured`` (fault → bool
+    (n,)) is False where the value is not the part's own estimate: a valve-side part another one was blamed for
+    (it reads 0 there).
+    """
+
+    value: Mapping[str, np.ndarray]
+    low: Mapping[str, np.ndarray]
+    high: Mapping[str, np.ndarray]
+    measured: Mapping[str, np.ndarray]
+
+    def history(self, fault: str) -> np.ndarray:
+        """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,): what a forecast reads
+        (a look-alike blamed for a while is neither wear nor a part replaced)."""
+        return np.where(self.measured[fault], self.value[fault], np.nan)
+
+    def window(self, i: int) -> dict[str, dict[str, float | list[float]]]:
+        """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only."""
+        return {f: {"value": round(float(self.value[f][i]), 4),
+                    "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
+                for f in self.value if np.isfinite(self.value[f][i])}
+
+
+def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
+                       relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS) -> Degradation:
+    """Index and interval of every fault the ``relations`` test, per window (module docstring).
+
+    Parameters
+    ----------
+    estimates : ParityEstimates
+        Free fits of the valid windows (``valve_search`` on), each array shape (m,), m = ``valid.sum()``.
+    valid : ndarray of bool, shape (n,)
+        Which of the machine's consecutive windows the estimates belong to.
+    nominal : PlantParameters
+        The unit's own healthy parameters (those the estimates were made with).
+    blocks : int
+        Residual blocks per window.
+    relations : sequence of str
+        Relations the sensors test (``ConditionFeatures.relations_``).
+    pool : int, default :data:`ATTRIBUTION_WINDOWS`
+        Valid windows deciding the valve-side part (:func:`attributed_valve_fault`).
+    """
+    n = valid.size
+    value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
+    measured = {f: np.zeros(n, dtype=bool) for f in FAULTS}
+    mse = {f: estimates.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
+    blamed = (attributed_valve_fault({f: _spread(mse[f], valid) for f in parity.VALVE_HYPOTHESES}, valid, pool)
+              if "valve" in relations and valid.any() else np.full(n, -1))
+    for fault in FAULTS:
+        if RELATION_OF[fault] not in relations or not valid.any():
+            continue
+        s = estimates.severity[fault]
+        se = severity_standard_error(mse[fault], estimates.curvature[fault], blocks)
+        v, lo, hi = (degradation_index(fault, x, nominal) for x in (s, s - Z95 * se, s + Z95 * se))
+        lo, hi = widened(v, lo, hi)
+        if fault in parity.VALVE_HYPOTHESES:
+            mine = blamed[valid] == parity.VALVE_HYPOTHESES.index(fault)
+            lo, hi = np.where(mine, lo, np.minimum(0.0, lo)), np.where(mine, hi, np.maximum(0.0, hi))
+            v = np.where(mine, v, 0.0)
+            measured[fault][valid] = mine
+        else:
+            measured[fault][valid] = True
+        value[fault][valid], low[fault][valid], high[fault][valid] = v, lo, hi
+    return Degradation(value, low, high, measured)
+
+
+def _spread(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Values of the valid windows (m,) spread over all windows (n,), NaN elsewhere."""
+    out = np.full(valid.size, np.nan)
+    out[valid] = x
+    return out
+
+
+def features_degradation(features: ConditionFeatures, windows: np.ndarray,
+                         pool: int = ATTRIBUTION_WINDOWS) -> Degradation:
+    """:func:`window_degradation` of one machine's consecutive raw windows, shape (n, window, 4 or 5), on the unit
+    that fitted (or was commissioned into) ``features``: its nominal parameters, sensors and oil coefficient."""
+    w = check_windows(windows, features.window)
+    valid = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
+    p = features.nominal_
+    blocks = (features.window - 1) // parity.BLOCK
+    if not valid.any():
+        empty = {f: np.full(valid.size, np.nan) for f in FAULTS}
+        return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
+    sig = window_signals(w[valid], features.sensors, p, features.viscosity_coefficient, p)
+    return window_degradation(parity_estimates(sig, p), valid, p, blocks, features.relations_, pool)

@@ -1,0 +1,292 @@
+"""When will a part reach the alert: a trend of its degradation index over its own history (issue 15).
+
+Input: one component's index per window (:mod:`hydrowatch.condition.degradation`; 0 as commissioned, 1.0 alert)
+with the windows' times. Not specific to the parity method: any index series on that scale works.
+
+1. **Clean.** Windows without an index (``invalid``, ``unknown``, a relation the sensors cannot test: NaN) are left
+   out. The time axis is the machine's *operating* time (:func:`operating_time`): a backward clock jump, or a
+   forward one longer than ``max_gap_s``, counts as one window hop, since wear advances while the machine runs and
+   a clock that jumps says nothing about how long it ran; shorter gaps count as they are.
+2. **Reset.** A part replaced shows as the index falling back near 0. The last point where the median of the next
+   :data:`RESET_AFTER` indices is below :data:`RESET_NEAR_ZERO` and at least :data:`RESET_DROP` below the median
+   of the previous :data:`RESET_BEFORE` starts a new trend (:func:`reset_start`); nothing before it is used.
+3. **Robust points.** The segment is cut into at most :data:`BINS` bins of consecutive windows, each reduced to its
+   mean time and *median* index, so isolated outliers do not move the fit.
+4. **Trend.** Least squares of I(t) = α + β·(e^{γ·(max(t, h) − t_now)} − 1)/γ over a grid of growth rates γ
+   (γ = 0 is the straight line α + β·(max(t, h) − t_now); γ·span in :data:`GROWTH_GRID`) and onsets h
+   (:data:`ONSETS`: the trend may be flat before the part starts wearing); the candidate with the smallest Bayesian
+   information criterion wins (a growth rate and an onset cost one parameter each). α is the level now, β the rate
+   now. Linear wear, exponential (accelerating) wear, and either starting after a quiet stretch are members of
+   the family; slowing wear is not (:data:`GROWTH_GRID`).
+5. **Alert time and interval.** The fitted curve is solved for I = 1 after the last window; the 95 % interval comes
+   from a moving-block bootstrap of the bin residuals (:data:`BOOTSTRAP` resamples, blocks keep the residuals'
+   correlation), each resample refitted with the same model selection and solved for an alert level drawn with
+   the index's systematic error (:data:`ALERT_SD`): the index's own scale is known to a few percent only.
+6. **When not to forecast** (``alert_in_s`` None with a ``reason``): fewer than :data:`MIN_POINTS` windows or less
+   than ``min_span_s`` of operating time since the reset ("too short"); a fitted rise over the segment below
+   :data:`MIN_RISE`, a rate whose 95 % interval reaches 0, or a crossing further away than
+   :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from hydrowatch.condition.degradation import SYSTEMATIC
+from hydrowatch.errors import DataError
+
+ALERT = 1.0
+"""Index at the alert level."""
+RESET_BEFORE = 12
+"""Windows (60 s) whose median is the level before a candidate reset: long enough that a burst of a few outlier
+windows (a look-alike blamed for a moment) does not pass for a worn part that was replaced."""
+RESET_AFTER = 6
+"""Windows whose median is the level after a candidate reset."""
+RESET_DROP = 0.25
+"""Fall of the median index (a quarter of the alert) that marks a part replaced."""
+RESET_NEAR_ZERO = 0.2
+"""The median index after a reset must be below this (a new part reads near 0)."""
+BINS = 60
+"""Most bins the segment is reduced to."""
+MIN_POINTS = 8
+"""Fewest valid windows since the reset for a forecast."""
+ONSETS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+"""Onsets of wear tried, as quantiles of the segment's bin times (0: wearing from the first window)."""
+GROWTH_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+"""γ·span values tried (0: straight line); span = operating time covered by the segment. No slowing (γ < 0)
+shapes: on the tuning units a valve_coil wearing linearly, with a kink in its index, was fitted as slowing wear
+and pushed beyond the horizon; a forecast of an alert should not bet on wear levelling off."""
+BOOTSTRAP = 200
+"""Bootstrap resamples of the interval."""
+MIN_RISE = 0.1
+"""Smallest rise of the fitted index over the segment that counts as wear (a fifth of the warning; the index's
+systematic error is 0.02 + 3 %): below it an exponential fitted to noise would extrapolate a healthy part to an
+alert (measured: a healthy valve_coil, level 0.001, forecast to alert in 2.2 h)."""
+HORIZON_FACTOR = 10.0
+"""A crossing further than this × the segment's span is not forecast (extrapolation beyond what the data show)."""
+ALERT_SD = SYSTEMATIC[0] + SYSTEMATIC[1] * ALERT
+"""Standard deviation of the index's systematic error at the alert (:data:`~hydrowatch.condition.degradation.
+SYSTEMATIC`): where the measured index reads 1.0 the part may be at 0.95 or 1.05, so each bootstrap resample
+solves for its own alert level drawn with it."""
+NEVER = 1e300
+"""Stands for a crossing that never comes (a flat or falling resample) inside the quantiles."""
+
+
+@dataclass(frozen=True)
+class Forecast:
+    """Time until a component's index reaches 1.0 (alert), from its own history.
+
+    Attributes
+    ----------
+    alert_in_s : float or None
+        Operating seconds from the last window with an index to the alert crossing (0 when already beyond); None
+        when the history does not support a forecast (``reason``).
+    ci95 : (float or None, float or None)
+        95 % interval of ``alert_in_s``, s; None for an unbounded end.
+    rate_per_h : float
+        Current wear rate dI/dt, index per operating hour (NaN with too few windows).
+    model : str
+        ``"linear"``, ``"exp"`` or ``"none"``.
+    level : float
+        Fitted index now.
+    points : int
+        Windows with an index since the last reset.
+    reset_at_s : float or None
+        Time of the window that started the current trend after a reset, s (None without a reset).
+    reason : str or None
+        Why there is no forecast.
+    """
+
+    alert_in_s: float | None
+    ci95: tuple[float | None, float | None]
+    rate_per_h: float
+    model: str = "none"
+    level: float = float("nan")
+    points: int = 0
+    reset_at_s: float | None = None
+    reason: str | None = field(default=None)
+
+    def to_dict(self) -> dict[str, object]:
+        """``score --json``'s summary entry: alert_in_s, ci95, rate_per_h (+ model, level, points, reset_at_s,
+        reason); floats rounded, non-finite as None."""
+
+        def num(x: float | None, digits: int = 1) -> float | None:
+            return None if x is None or not np.isfinite(x) else round(float(x), digits)
+
+        out: dict[str, object] = {"alert_in_s": num(self.alert_in_s), "ci95": [num(self.ci95[0]), num(self.ci95[1])],
+                                  "rate_per_h": num(self.rate_per_h, 5), "model": self.model,
+                                  "level": num(self.level, 4), "points": self.points,
+                                  "reset_at_s": num(self.reset_at_s, 3)}
+        if self.reason is not None:
+            out["reason"] = self.reason
+        return out
+
+
+def operating_time(t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Operating time of consecutive windows, s, shape (n,): steps ≤ 0 or > ``max_gap_s`` count as one typical hop.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Window times in arrival order, s (may jump back or forward).
+    max_gap_s : float
+        Longest step counted as it is, s.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 2:
+        return t - (t[0] if t.size else 0.0)
+    dt = np.diff(t)
+    ok = (dt > 0) & (dt <= max_gap_s)
+    hop = float(np.median(dt[ok])) if ok.any() else 1.0
+    return np.concatenate([[0.0], np.cumsum(np.where(ok, dt, hop))])
+
+
+def reset_start(index: np.ndarray) -> int:
+    """Position where the current trend starts: after the last reset (module docstring), else 0.
+
+    Parameters
+    ----------
+    index : ndarray, shape (n,)
+        Valid indices in time order.
+    """
+    v = np.asarray(index, dtype=np.float64)
+    n, r, q = v.size, RESET_BEFORE, RESET_AFTER
+    if n < r + q:
+        return 0
+    positions = np.arange(r, n - q + 1)
+    before = np.array([np.median(v[i - r:i]) for i in positions])
+    after = np.array([np.median(v[i:i + q]) for i in positions])
+    found = np.flatnonzero((after < RESET_NEAR_ZERO) & (before - after >= RESET_DROP))
+    if not found.size:
+        return 0
+    run = [found[-1]]  # the last run of candidate positions; the step is where the means differ most
+    while run[-1] - 1 in found:
+        run.append(run[-1] - 1)
+    step = [np.mean(v[positions[k] - q:positions[k]]) - np.mean(v[positions[k]:positions[k] + q]) for k in run]
+    return int(positions[run[int(np.argmax(step))]])
+
+
+def _binned(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean time, median index) of at most :data:`BINS` bins of consecutive points."""
+    groups = np.array_split(np.arange(t.size), min(BINS, t.size))
+    return np.array([t[g].mean() for g in groups]), np.array([np.median(v[g]) for g in groups])
+
+
+def _bases(x: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate trend shapes at bin times x ≤ 0 (0 = now), s: bases (J, n), their γ (J,) and parameter counts (J,).
+
+    Basis (e^{γ·max(x, h)} − 1)/γ (γ = 0: max(x, h)) for every γ of :data:`GROWTH_GRID` and onset h of
+    :data:`ONSETS`: 0 now, slope 1 now, so that α is the level now and β the rate now; before an onset h the trend
+    is flat (a part that starts wearing after a quiet stretch).
+    """
+    onsets = np.quantile(x, ONSETS)
+    bases, gammas, counts = [], [], []
+    for h_i, h in enumerate(onsets):
+        z = np.maximum(x, h)
+        for g_span in GROWTH_GRID:
+            g = g_span / span
+            bases.append(z if g == 0.0 else np.expm1(g * z) / g)
+            gammas.append(g)
+            counts.append(2 + (g != 0.0) + (h_i > 0))
+    return np.array(bases), np.array(gammas), np.array(counts)
+
+
+def _fit(bases: np.ndarray, gammas: np.ndarray, counts: np.ndarray,
+         y: np.ndarray) -> tuple[float, float, float, int]:
+    """(α, β, γ, which) of the candidate y ≈ α + β·basis with the smallest Bayesian information criterion (closed-form
+    least squares of every candidate at once)."""
+    n = y.size
+    bc = bases - bases.mean(axis=1, keepdims=True)
+    yc = y - y.mean()
+    sbb = np.einsum("jn,jn->j", bc, bc)
+    beta = np.where(sbb > 0, bc @ yc / np.maximum(sbb, 1e-300), 0.0)
+    rss = np.maximum(yc @ yc - beta**2 * sbb, 1e-300)
+    bic = n * np.log(rss / n) + counts * np.log(n)
+    j = int(np.argmin(bic))
+    alpha = float(y.mean() - beta[j] * bases[j].mean())
+    return alpha, float(beta[j]), float(gammas[j]), j
+
+
+def _crossing(alpha: float, beta: float, gamma: float, alert: float = ALERT) -> float:
+    """Time after now, s, at which α + β·(e^{γx} − 1)/γ reaches ``alert`` (0 if already there, inf never)."""
+    if alpha >= alert:
+        return 0.0
+    need = alert - alpha
+    if gamma == 0.0:
+        return need / beta if beta > 0 else np.inf
+    arg = 1.0 + gamma * need / beta if beta != 0 else -1.0
+    if beta <= 0 or arg <= 0:
+        return np.inf
+    return float(np.log(arg) / gamma)
+
+
+def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0,
+                   seed: int = 0) -> Forecast:
+    """Forecast one component's alert crossing from its index history (module docstring).
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Window times, s, in arrival order.
+    index : array_like, shape (n,)
+        Degradation index per window; NaN where the window has none (invalid, unknown).
+    max_gap_s : float, default 3600
+        Longest forward step of the clock counted as operating time, s.
+    min_span_s : float, default 300
+        Shortest operating time since the last reset that is forecast from, s.
+    seed : int, default 0
+        Bootstrap seed.
+
+    Raises
+    ------
+    DataError
+        When ``t`` and ``index`` differ in length.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    v = np.asarray(index, dtype=np.float64)
+    if t.shape != v.shape or t.ndim != 1:
+        raise DataError(f"times and index must be 1-D of one length. Got shapes {t.shape} and {v.shape}.")
+    keep = np.isfinite(v) & np.isfinite(t)
+    t, v = t[keep], v[keep]
+    start = reset_start(v)
+    reset_at = float(t[start]) if start > 0 else None
+    op = operating_time(t[start:], max_gap_s)
+    v = v[start:]
+    if v.size < MIN_POINTS or op[-1] < min_span_s:
+        return Forecast(None, (None, None), float("nan"), points=int(v.size), reset_at_s=reset_at,
+                        reason=f"too short: {v.size} windows over {op[-1] if op.size else 0.0:.0f} s since "
+                               f"{'the reset' if reset_at is not None else 'the start'}; a forecast needs "
+                               f"{MIN_POINTS} windows over {min_span_s:g} s")
+    x, y = _binned(op - op[-1], v)
+    span = float(op[-1])
+    bases, gammas, counts = _bases(x, span)
+    alpha, beta, gamma, j = _fit(bases, gammas, counts, y)
+    fitted = alpha + beta * bases[j]
+    residual = y - fitted
+    rng = np.random.default_rng(seed)
+    block = max(1, int(round(np.sqrt(x.size))))
+    rates, crossings = np.empty(BOOTSTRAP), np.empty(BOOTSTRAP)
+    levels = ALERT + ALERT_SD * rng.standard_normal(BOOTSTRAP)  # the index's own systematic error at the alert
+    for b in range(BOOTSTRAP):
+        starts = rng.integers(0, x.size - block + 1, size=int(np.ceil(x.size / block)))
+        resampled = np.concatenate([residual[s:s + block] for s in starts])[: x.size]
+        a_b, b_b, g_b, _ = _fit(bases, gammas, counts, fitted + resampled)
+        rates[b], crossings[b] = b_b, _crossing(a_b, b_b, g_b, levels[b])
+    model = "linear" if gamma == 0.0 else "exp"
+    rate_h = beta * 3600.0
+    lo, hi = (float(q) for q in np.quantile(np.minimum(crossings, NEVER), [0.025, 0.975]))
+    ci = (lo if lo < NEVER else None, hi if hi < NEVER else None)
+    fitted_now = Forecast(None, ci, rate_h, model, alpha, int(v.size), reset_at)
+    point = _crossing(alpha, beta, gamma)
+    if point == 0.0:
+        return replace(fitted_now, alert_in_s=0.0, ci95=(0.0, ci[1] if ci[1] is not None else 0.0))
+    low_rate = float(np.quantile(rates, 0.025))
+    rise = alpha - float(np.min(fitted))
+    if rise < MIN_RISE or low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
+        why = (f"the index rose {rise:.3f} < {MIN_RISE:g} over the history" if rise < MIN_RISE
+               else "the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
+               else f"the alert is further than {HORIZON_FACTOR:g}× the {span:.0f} s of history")
+        return replace(fitted_now, reason=f"too flat: {why}")
+    return replace(fitted_now, alert_in_s=float(point))

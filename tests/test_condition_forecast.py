@@ -1,0 +1,97 @@
+"""Forecast of the alert crossing from a degradation-index history (issue 15), on series with known truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hydrowatch.condition.forecast import forecast_alert, operating_time, reset_start
+from hydrowatch.errors import DataError
+
+HOP = 5.0
+
+
+def _noisy(v: np.ndarray, seed: int, sigma: float = 0.02, outliers: float = 0.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    out = v + rng.normal(scale=sigma, size=v.size)
+    bad = rng.random(v.size) < outliers
+    out[bad] += rng.choice([-0.8, 0.8], size=int(bad.sum()))
+    return out
+
+
+def test_linear_wear_with_outliers_and_invalid_windows():
+    t = np.arange(0.0, 3600.0, HOP)  # an hour of 5 s windows, 0 -> 0.6 (alert at 6000 s)
+    v = _noisy(0.6 * t / 3600.0, 1, outliers=0.05)
+    v[np.random.default_rng(2).random(t.size) < 0.2] = np.nan  # invalid / unknown windows
+    f = forecast_alert(t, v)
+    truth = 6000.0 - t[np.isfinite(v)][-1]
+    assert f.model == "linear" and f.alert_in_s == pytest.approx(truth, rel=0.1)
+    assert f.ci95[0] <= truth <= f.ci95[1] and f.ci95[1] - f.ci95[0] < 0.5 * truth
+    assert f.rate_per_h == pytest.approx(0.6, rel=0.1)
+    assert json.loads(json.dumps(f.to_dict()))["alert_in_s"] == pytest.approx(f.alert_in_s, abs=0.1)
+
+
+def test_exponential_wear_is_fitted_as_exponential():
+    tau = 1800.0
+    t = np.arange(0.0, 3600.0, HOP)
+    v = _noisy(0.1 * np.expm1(t / tau), 3)  # reaches 1.0 at tau·ln(11) = 4316 s
+    f = forecast_alert(t, v)
+    truth = tau * np.log(11.0) - t[-1]
+    assert f.model == "exp" and f.alert_in_s == pytest.approx(truth, rel=0.2)
+    assert f.ci95[0] <= truth <= f.ci95[1]
+    assert f.rate_per_h == pytest.approx(0.1 / tau * np.exp(t[-1] / tau) * 3600.0, rel=0.2)
+    linear_guess = (1.0 - v[-1]) / ((v[-1] - v[0]) / t[-1])  # a straight line would say much later
+    assert linear_guess > 2 * truth
+
+
+def test_a_replaced_part_starts_a_new_trend():
+    t = np.arange(0.0, 4000.0, HOP)
+    old = 0.9 * t / 2000.0
+    new = 0.5 * (t - 2000.0) / 2000.0
+    v = _noisy(np.where(t < 2000.0, old, new), 4)
+    f = forecast_alert(t, v)
+    assert f.reset_at_s == pytest.approx(2000.0, abs=3 * HOP)
+    truth = 2000.0 + 4000.0 - t[-1]  # the new part: 0.5 per 2000 s, at 0.5 now
+    assert f.alert_in_s == pytest.approx(truth, rel=0.1) and f.ci95[0] <= truth <= f.ci95[1]
+    assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.75), np.full(10, 0.05)]) == 20
+    assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.55)]) == 0  # a dip, not back near 0
+    burst = np.r_[np.zeros(30), np.full(4, 1.2), np.zeros(30)]  # four outlier windows are no part replaced
+    assert reset_start(burst) == 0
+
+
+def test_gaps_and_clock_jumps_count_as_operating_time():
+    op = np.arange(0.0, 3600.0, HOP)  # what the machine ran
+    v = _noisy(0.6 * op / 3600.0, 5)
+    clock = op.copy()
+    clock[300:] += 5 * 3600.0  # machine off five hours (forward jump)
+    clock[500:] -= 7 * 86400.0  # clock set back a week
+    assert operating_time(clock, 3600.0) == pytest.approx(op)  # each jump counts as one hop
+    f = forecast_alert(clock, v)
+    assert f.alert_in_s == pytest.approx(6000.0 - op[-1], rel=0.1)
+    short_gap = op.copy()
+    short_gap[300:] += 600.0  # ten minutes without data while running: kept as time
+    assert operating_time(short_gap, 3600.0)[-1] == pytest.approx(op[-1] + 600.0)
+
+
+def test_flat_or_short_histories_give_no_forecast():
+    t = np.arange(0.0, 7200.0, HOP)  # a healthy machine over two hours
+    for seed in range(5):
+        f = forecast_alert(t, _noisy(np.zeros(t.size), seed, outliers=0.02))
+        assert f.alert_in_s is None or f.alert_in_s > 24 * 3600.0
+        assert f.alert_in_s is None and f.reason is not None and f.reason.startswith("too flat")
+    tiny = 0.001 * np.expm1(6.0 * t / t[-1]) / np.expm1(6.0)  # noise-level curvature must not be extrapolated
+    f = forecast_alert(t, _noisy(tiny, 9, sigma=0.002))
+    assert f.alert_in_s is None and "rose" in f.reason
+    f = forecast_alert(t[:6], np.linspace(0.1, 0.9, 6))
+    assert f.alert_in_s is None and f.reason.startswith("too short") and f.to_dict()["ci95"] == [None, None]
+    assert forecast_alert(t, np.full(t.size, np.nan)).reason.startswith("too short")
+    with pytest.raises(DataError, match="one length"):
+        forecast_alert(t, t[:-1])
+
+
+def test_already_beyond_the_alert_reads_zero():
+    t = np.arange(0.0, 1800.0, HOP)
+    f = forecast_alert(t, _noisy(1.1 + 0.1 * t / 1800.0, 6))
+    assert f.alert_in_s == 0.0 and f.level > 1.0
