@@ -46,8 +46,8 @@ def test_search_finds_the_study_orders_on_eq_3_24() -> None:
     raise G only to (6, 6) (``max_order=6``): with the default 8 it went on to (7, 7) by 0.2-4 AIC
     units a step, fitting neighbours up to (8, 8), before step 5 came back to (4, 4): 12 more fits
     (nb, nf of 7-8) and 26 of 60 CPU-s. Measured on a shared 2-core machine: 43 CPU-s for the
-    pytest process (60 for the search with one BLAS thread and ``max_order=8``; 421 CPU-s was
-    reported before ``BoxJenkins.fit`` pinned BLAS to one thread).
+    pytest process (60 for the search with one BLAS thread and ``max_order=8``; before
+    ``BoxJenkins.fit`` pinned BLAS to one thread, 286 CPU-s the same day, 421 on a quiet day).
     """
     m = STUDY_MODEL_3_24
     rng = np.random.default_rng(0)
