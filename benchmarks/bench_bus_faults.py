@@ -14,7 +14,7 @@ return scorer shard 1 gets the same. Printed per machine:
 
 Usage::
 
-    python benchmarks/bench_bus_faults.py [--machines 6] [--seconds 60] [--kill-at 12] [--down 10]
+    python benchmarks/bench_bus_faults.py [--machines 6] [--seconds 60] [--kill-at 12] [--down 10] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -146,9 +146,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="plant run, s (real time)")
     parser.add_argument("--kill-at", type=float, default=12.0, help="when recorder shard 1 is killed, s")
     parser.add_argument("--down", type=float, default=10.0, help="how long each killed shard stays down, s")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="work in this new folder and keep it (recordings, model, each service's log)")
     args = parser.parse_args()
     if args.kill_at + 3 * args.down >= args.seconds - 5:
         parser.error("--seconds must leave the last restart 5 s before the end")
+    if args.keep is not None:
+        args.keep.mkdir(parents=True)
+        run(args, args.keep)
+        return
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as work:
         run(args, Path(work))
 
