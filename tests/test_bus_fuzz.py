@@ -173,6 +173,7 @@ def test_malformed_traffic_is_counted_logged_once_and_stops_nothing(tmp_path: Pa
                    "--smoothing", 1)
     plant = None
     verdicts: dict[str, list[float]] = {}
+    states: dict[str, Counter[str]] = {}
     heartbeats: dict[str, dict] = {}
     messages = malformed(random.Random(18), 3500)
     try:
@@ -185,6 +186,8 @@ def test_malformed_traffic_is_counted_logged_once_and_stops_nothing(tmp_path: Pa
                 while (left := end - time.monotonic()) > 0:
                     for message in health.recv_many(timeout=min(left, 0.2)):
                         verdicts.setdefault(message.key.machine, []).append(time.monotonic())
+                        states.setdefault(message.key.machine, Counter()).update(
+                            message.batch.column("state").to_pylist())
                     for message in status.recv_many(timeout=0.0):
                         row = message.batch.to_pylist()[0]
                         heartbeats[row["service"]] = row
@@ -235,12 +238,16 @@ def test_malformed_traffic_is_counted_logged_once_and_stops_nothing(tmp_path: Pa
         assert beat["status"] == "stopped" and beat["messages_undecodable"] == sum(expected.values()), (service, beat)
     assert f"undecodable={sum(refused(messages, f'hydro/{FLEET}/**').values())}" in text["record"]
     assert "Traceback" not in text["record"] + text["scorer"]
+    # NaN or time going backwards in every chunk: no window of those machines is ever complete, so they get no
+    # verdict but 'invalid' ones (the parity scorer starts each window at the machine's phase after a break)
+    for machine in ("bad-nan", "bad-backwards"):
+        assert set(states.get(machine, {})) <= {"invalid"}, (machine, states[machine])
     # every file in a machine's own folder: no key wrote outside it (a machine id '..' or '.' would)
     assert {p.parent.parent for p in (tmp_path / "rec").rglob("*.mcap")} == {tmp_path / "rec" / FLEET}
     during = [sum(began <= t <= ended for t in verdicts[m]) for m in HEALTHY]
     print(f"fuzz: {len(messages)} messages in {ended - began:.1f} s; refused by the recorder "
           f"{sum(refused(messages, f'hydro/{FLEET}/**').values())}; verdicts per healthy machine during the fuzz "
-          f"{during}, in all {[len(verdicts[m]) for m in HEALTHY]}")
+          f"{during}, in all {[len(verdicts[m]) for m in HEALTHY]}; verdict states per machine {states}")
 
 
 def stop(proc: subprocess.Popen) -> int:
