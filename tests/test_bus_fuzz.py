@@ -2,7 +2,8 @@
 
 Beside a healthy plant stream, thousands of malformed messages: random bytes, truncated Arrow IPC,
 bit flips, a valid batch of another schema, a schema version from the future, a huge message,
-sensor chunks with NaN and with time going backwards, keys that do not parse. Every service keeps
+sensor chunks with NaN and with time going backwards, keys that do not parse; and malformed history
+queries, which the plant answers. Every service keeps
 running and exits 0 on SIGTERM, the healthy machines' recordings are complete and their verdicts
 keep coming, the counters count what was refused, and each bad key is logged once.
 """
@@ -202,8 +203,13 @@ def test_malformed_traffic_is_counted_logged_once_and_stops_nothing(tmp_path: Pa
                 listen(0.5)
             assert all(verdicts.get(m) for m in HEALTHY), "no verdicts before the fuzz"
             began = time.monotonic()
+            queries = [f"hydro/{FLEET}/m000/sensors?{p}" for p in ("start=abc", "start=5;end=1", "start=nan;end=nan",
+                                                                    "", "start=-inf;end=inf;x=y", "end=1e400")]
+            queries += [f"hydro/{FLEET}/*/sensors?start=-inf;end=inf", f"hydro/{FLEET}/../sensors?start=0;end=1"]
             for i, (key, payload) in enumerate(messages):  # spread over ~6 s, verdicts due meanwhile
                 publisher.put_payload(key, payload)
+                if i % 25 == 0:  # malformed history queries: the plant answers those (and must go on)
+                    session.get(queries[i // 25 % len(queries)], lambda reply: None, timeout=2.0)
                 if i % 200 == 0:
                     listen(0.3)
                     assert plant.poll() is None, "the plant ended before the fuzz did"
