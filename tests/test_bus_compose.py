@@ -1,32 +1,127 @@
-"""compose.yaml parses and every command in it is a valid hydrowatch invocation."""
+"""compose.yaml stays equivalent to the topology that ``hydrowatch up`` and the tests start (issue 18, item 6).
+
+The same services (plant, recorder shards, trainer, scorer shards), each command's flags parsed by that service's
+own parser (what ``python -m services.<name>`` accepts, not only the ``hydrowatch`` CLI), the router endpoint the
+services connect to being the one the router listens on, the trainer reading the recorders' folder and the
+scorers following the model the trainer registers.
+"""
 
 from __future__ import annotations
 
+import argparse
+import importlib
 from pathlib import Path
+from types import ModuleType
+from urllib.parse import urlsplit
 
+import pytest
 import yaml
 
+from hydrowatch.bus import BusSettings
+from hydrowatch.bus.service import service_parser
+from hydrowatch.bus.session import ENV_CONNECT, settings_from_args
 from hydrowatch.cli import build_parser
+from hydrowatch.commands import up
 
 COMPOSE = Path(__file__).resolve().parent.parent / "compose.yaml"
+SERVICES = {"plant": "services.plant", "record": "services.recorder", "trainer": "services.trainer",
+            "scorer": "services.scorer"}
+"""Services deployed (``hydrowatch up --services`` names → their package); ``watch`` is an operator's view."""
 
 
-def test_compose_services_are_valid_hydrowatch_invocations() -> None:
-    spec = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))
-    services = spec["services"]
-    assert services["zenoh"]["image"].startswith("eclipse/zenoh")
-    mlflow = " ".join(services["mlflow"]["command"].split())
-    assert "--backend-store-uri postgresql://" in mlflow and "postgres" in services
-    parser = build_parser()
-    commands = {}
-    for name, service in services.items():
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    return yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))["services"]
+
+
+def service_module(command: str) -> ModuleType:
+    return importlib.import_module(SERVICES[command])
+
+
+def parse_as_service(command: str, argv: list[str]) -> argparse.Namespace:
+    """``argv`` parsed by the service's own parser; a flag it does not take fails the test by name."""
+    module = service_module(command)
+    try:
+        return service_parser(module.NAME, module.HELP, module.add_arguments).parse_args(argv)
+    except SystemExit:
+        pytest.fail(f"{command} does not take {argv}")
+
+
+def hydrowatch_services(compose: dict) -> dict[str, tuple[str, argparse.Namespace, dict]]:
+    """Compose service → (subcommand, its arguments parsed by the service's own parser, environment)."""
+    parser, found = build_parser(), {}
+    for name, service in compose.items():
         command = service.get("command")
         if isinstance(command, list) and command[0] == "hydrowatch":
             args = parser.parse_args(command[1:])  # exits (fails the test) on an invalid invocation
-            commands[name] = args.subcommand
-            assert service["environment"]["HYDROWATCH_ZENOH_CONNECT"] == "tcp/zenoh:7447"
+            at = command.index(args.subcommand)
+            found[name] = (args.subcommand, parse_as_service(args.subcommand, command[at + 1:]),
+                           service["environment"])
+    return found
+
+
+def test_compose_services_are_valid_hydrowatch_invocations(compose: dict) -> None:
+    assert compose["zenoh"]["image"].startswith("eclipse/zenoh")
+    mlflow = " ".join(compose["mlflow"]["command"].split())
+    assert "--backend-store-uri postgresql://" in mlflow and "postgres" in compose
+    commands = {name: command for name, (command, _, _) in hydrowatch_services(compose).items()}
     assert commands == {"plant": "plant", "record-0": "record", "record-1": "record", "trainer": "trainer",
                         "score-0": "scorer", "score-1": "scorer"}
-    for pair in (("record-0", "record-1"), ("score-0", "score-1")):
-        shards = sorted(str(parser.parse_args(services[n]["command"][1:]).shard) for n in pair)
-        assert shards == ["0/2", "1/2"], pair
+    assert set(commands.values()) == set(up.KNOWN) - {"watch"} == set(SERVICES)
+
+
+def test_compose_shards_cover_the_fleet(compose: dict) -> None:
+    shards: dict[str, list[str]] = {}
+    for command, args, _ in hydrowatch_services(compose).values():
+        if command in ("record", "scorer"):
+            shards.setdefault(command, []).append(str(args.shard))
+    n = len(shards["record"])
+    assert n > 1 and sorted(shards["record"]) == sorted(shards["scorer"]) == [f"{i}/{n}" for i in range(n)]
+
+
+def test_up_hands_each_service_only_flags_it_takes(tmp_path: Path) -> None:
+    # `up --services plant,record,trainer,scorer` once gave the trainer bus flags it does not take (issue 18)
+    parser = argparse.ArgumentParser()
+    up.add_arguments(parser)
+    args = parser.parse_args(["--services", ",".join(SERVICES), "--out", str(tmp_path), "--tracking-uri", "sqlite://"])
+    for spec in up.service_specs(args, 7555):
+        parsed = parse_as_service(spec.name, list(spec.argv))
+        if hasattr(parsed, "connect"):  # on the bus: a client of up's router
+            router = BusSettings(mode="router", port=7555).to_json()["listen"]["endpoints"]
+            assert settings_from_args(parsed).resolved_mode == "client" and list(parsed.connect) == router
+
+
+def test_compose_services_connect_to_the_router_compose_starts(compose: dict) -> None:
+    router = compose["zenoh"]["command"]
+    listen = urlsplit("//" + router[router.index("--listen") + 1].split("/", 1)[1])
+    assert "--no-multicast-scouting" in router and f"{listen.port}:{listen.port}" in compose["zenoh"]["ports"]
+    mlflow = compose["mlflow"]["command"].split()
+    for name, (command, args, env) in hydrowatch_services(compose).items():
+        assert "zenoh" in compose[name]["depends_on"], name
+        if command != "trainer":  # the trainer is not on the bus
+            settings = BusSettings.from_env(env, mode=args.mode, connect=args.connect, listen=args.listen,
+                                            port=args.bus_port, config_file=args.zenoh_config)
+            assert settings.resolved_mode == "client" and settings.connect == (f"tcp/zenoh:{listen.port}",), name
+            assert env[ENV_CONNECT] == f"tcp/zenoh:{listen.port}"
+        tracking = urlsplit(env["MLFLOW_TRACKING_URI"])
+        assert tracking.hostname in compose and str(tracking.port) == mlflow[mlflow.index("--port") + 1], name
+
+
+def test_compose_topology_is_the_one_up_starts(compose: dict) -> None:
+    services = hydrowatch_services(compose)
+    by_command: dict[str, list[tuple[str, argparse.Namespace]]] = {}
+    for name, (command, args, _) in services.items():
+        by_command.setdefault(command, []).append((name, args))
+    (plant,), (trainer_name, trainer) = by_command["plant"], by_command["trainer"][0]
+    fleets = {args.fleet for command in ("plant", "record", "scorer") for _, args in by_command[command]}
+    assert fleets == {plant[1].fleet}, "plant, recorders and scorers on one fleet"
+    for name, recorder in by_command["record"]:
+        # the trainer reads the recorders' folder (same volume, same path) ...
+        mounted = {v.split(":")[0]: v.split(":")[1] for v in compose[name]["volumes"]}
+        trained = {v.split(":")[0]: v.split(":")[1] for v in compose[trainer_name]["volumes"]}
+        volume = next(v for v, path in mounted.items() if Path(path) == recorder.out)
+        assert Path(trained[volume]) == trainer.data == recorder.out, name
+        # ... and finds finished files: as `up` does, the recorders close theirs every half training period
+        assert recorder.rotate_s <= max(trainer.every / 2, 10.0), name
+    for name, scorer in by_command["scorer"]:  # the scorers follow what the trainer registers
+        assert scorer.model == f"models:/{trainer.model_name}@{trainer.alias}" and scorer.follow_alias > 0, name

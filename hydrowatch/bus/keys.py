@@ -28,10 +28,15 @@ class Key(NamedTuple):
         return f"{PREFIX}/{self.fleet}/{self.machine}/{self.topic}"
 
 
+def _valid_id(value: str) -> bool:
+    """Whether ``value`` may be a fleet or machine id (it names a folder of recordings: not ``.`` or ``..``)."""
+    return bool(value) and value not in (".", "..") and not _FORBIDDEN.intersection(value)
+
+
 def _check_id(what: str, value: str) -> str:
-    if not value or _FORBIDDEN.intersection(value):
+    if not _valid_id(value):
         raise ParameterError(
-            f"{what} must be a non-empty id without any of '/*$?#@' or spaces. Got {value!r}. "
+            f"{what} must be a non-empty id without any of '/*$?#@' or spaces, and not '.' or '..'. Got {value!r}. "
             "Use letters, digits, '-', '_' or '.'."
         )
     return value
@@ -58,8 +63,9 @@ def key_expr(fleet: str = "*", machine: str = "*", topic: str = "sensors") -> st
 def parse_key(text: str) -> Key:
     """Split a concrete key into fleet, machine and topic; DataError when it is not a contract key."""
     parts = str(text).split("/")
-    if len(parts) != 4 or parts[0] != PREFIX or not parts[1] or not parts[2] or parts[3] not in TOPICS:
+    if len(parts) != 4 or parts[0] != PREFIX or not all(map(_valid_id, parts[1:3])) or parts[3] not in TOPICS:
         raise DataError(
-            f"key must look like '{PREFIX}/<fleet>/<machine>/<topic>' with topic in {TOPICS}. Got {text!r}."
+            f"key must look like '{PREFIX}/<fleet>/<machine>/<topic>' with topic in {TOPICS} and ids without "
+            f"'/*$?#@' or spaces, not '.' or '..'. Got {text!r}."
         )
     return Key(parts[1], parts[2], parts[3])

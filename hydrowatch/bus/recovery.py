@@ -27,7 +27,9 @@ publisher has already left.
 from __future__ import annotations
 
 import logging
+import math
 import time
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -51,7 +53,8 @@ SAMPLE_PERIOD_S = 1.0 / 200.0
 FORGET_AFTER_S = 60.0
 """Chunk starts taken out of order are remembered this long behind a key's stream (to keep each once), s."""
 LOGGED_GAPS = 20
-"""Gaps logged one by one (then only counted)."""
+"""Gaps logged one by one (then only counted), and losses logged per key (a publisher of chunks whose times are
+broken, NaN or going backwards, must not flood the log)."""
 
 
 def _stamp(t: float) -> int:
@@ -108,6 +111,8 @@ class GapRecovery:
     samples_recovered: int = 0
     samples_lost: int = 0
     chunks_lost: int = 0
+    losses: Counter[str] = field(default_factory=Counter)
+    """Per key, gaps that stayed (in part) unanswered; a key's first :data:`LOGGED_GAPS` are logged one by one."""
     _next: dict[str, tuple[float, float]] = field(default_factory=dict)
     """Per key: when its next chunk should start, s, and its sample period, s."""
     _rows: dict[str, int] = field(default_factory=dict)
@@ -125,9 +130,9 @@ class GapRecovery:
         out: list[Message] = []
         for message in messages:
             span = message.time_span() if message.key.topic == "sensors" else None
-            if span is None:
-                out.append(message)
-                continue
+            if span is None or not (math.isfinite(span[0]) and math.isfinite(span[1]) and span[1] >= span[0]):
+                out.append(message)  # no times, or not a stretch of time (NaN, time going backwards): not a place
+                continue             # in the stream to expect the next chunk from; the scorer rejects it
             start, end, rows = span
             key = str(message.key)
             previous = self._next.get(key)
@@ -270,8 +275,10 @@ class GapRecovery:
         if lost > 0:
             self.samples_lost += lost
             self.chunks_lost += -(-lost // max(1, self._rows.get(request.key, lost)))
-            event(log, "samples lost: the gap was not recovered", logging.WARNING, key=request.key,
-                  start_s=round(request.start, 6), end_s=round(request.end, 6), samples=lost)
+            self.losses[request.key] += 1
+            if self.losses[request.key] <= LOGGED_GAPS:
+                event(log, "samples lost: the gap was not recovered", logging.WARNING, key=request.key,
+                      start_s=round(request.start, 6), end_s=round(request.end, 6), samples=lost)
 
     def wait(self, timeout: float | None = None) -> list[Message]:
         """Collect until every question is settled (at most ``timeout`` s, default the query timeout); releases

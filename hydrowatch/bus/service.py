@@ -69,6 +69,16 @@ def run_service(run: Run, args: argparse.Namespace) -> int:
         return int(run(args, stop) or 0)
 
 
+def service_parser(
+    name: str, help_text: str, add_arguments: Callable[[argparse.ArgumentParser], None]
+) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.<name>``: ``-v`` plus the service's own flags."""
+    parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=help_text)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    add_arguments(parser)
+    return parser
+
+
 def service_main(
     name: str,
     help_text: str,
@@ -80,10 +90,7 @@ def service_main(
 
     Errors hydrowatch raises on purpose print as one line and give exit status 2.
     """
-    parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=help_text)
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
-    add_arguments(parser)
-    args = parser.parse_args(argv)
+    args = service_parser(name, help_text, add_arguments).parse_args(argv)
     configure(args.verbose)
     try:
         return run_service(run, args)

@@ -10,6 +10,7 @@ whichever comes first: that bounds what a ``kill -9`` can lose.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -24,6 +25,8 @@ from hydrowatch.schemas import SCHEMA_VERSION, schema_name, schema_version, unit
 OPENERS = 4
 """Threads that create folders and files: creating one took 0.1-3 ms of wall time (disk), during
 which the recorder would otherwise stop taking messages (~3 s at the first chunk of 1000 machines)."""
+MAX_TIME_NS = 2**63 - 1
+"""Latest time an MCAP record takes, ns (a chunk that says it starts later is stored at this time)."""
 
 
 @dataclass
@@ -144,8 +147,8 @@ class RecordingFiles:
             )
         topic, name, version, sensors = channel
         publish = message.publish_time_ns
-        if sensors and (start := message.start_time()) is not None:
-            publish = max(0, int(round(start * 1e9)))
+        if sensors and (start := message.start_time()) is not None and math.isfinite(start):
+            publish = min(max(0, int(round(start * 1e9))), MAX_TIME_NS)  # else (NaN t) the publish time as sent
         current.writer.write_encoded(topic, message.payload, message.receive_time_ns, name, version, publish)
         current.messages += 1
         self.messages += 1
