@@ -221,16 +221,23 @@ def _spread(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def features_degradation(features: ConditionFeatures, windows: np.ndarray,
-                         pool: int = ATTRIBUTION_WINDOWS) -> Degradation:
+def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool: int = ATTRIBUTION_WINDOWS,
+                         estimated: tuple[np.ndarray, ParityEstimates | None] | None = None) -> Degradation:
     """:func:`window_degradation` of one machine's consecutive raw windows, shape (n, window, 4 or 5), on the unit
-    that fitted (or was commissioned into) ``features``: its nominal parameters, sensors and oil coefficient."""
-    w = check_windows(windows, features.window)
-    valid = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
-    p = features.nominal_
-    blocks = (features.window - 1) // parity.BLOCK
-    if not valid.any():
+    that fitted (or was commissioned into) ``features``: its nominal parameters, sensors and oil coefficient.
+
+    ``estimated``: (valid-window mask, their estimates at the nominal fill) when the caller fitted the relations
+    already (:meth:`ConditionFeatures.evidence_and_estimates`: one fit serves the verdicts and the index)."""
+    if estimated is None:
+        w = check_windows(windows, features.window)
+        valid = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
+        p = features.nominal_
+        estimates = (parity_estimates(window_signals(w[valid], features.sensors, p, features.viscosity_coefficient, p),
+                                      p) if valid.any() else None)
+    else:
+        valid, estimates = estimated
+    if estimates is None or not valid.any():
         empty = {f: np.full(valid.size, np.nan) for f in FAULTS}
         return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
-    sig = window_signals(w[valid], features.sensors, p, features.viscosity_coefficient, p)
-    return window_degradation(parity_estimates(sig, p), valid, p, blocks, features.relations_, pool)
+    blocks = (features.window - 1) // parity.BLOCK
+    return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool)

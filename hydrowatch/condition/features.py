@@ -332,11 +332,17 @@ class ConditionFeatures:
         d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy). See
         :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout`.
         """
+        return self.evidence_and_estimates(windows)[0]
+
+    def evidence_and_estimates(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, E.ParityEstimates | None]:
+        """:meth:`transform_evidence` rows, the valid-window mask (n,) and the valid windows' estimates at the
+        nominal fill (None when no window is valid), from one fit of the relations: what the degradation index
+        reads (:func:`hydrowatch.condition.degradation.features_degradation`) beside the verdicts."""
         ok, groups = self._estimates(windows)
         k = len(self.states_)
         out = np.full((ok.size, 2 * len(self.feature_names_) + 2 * k), np.nan)
         if not groups:
-            return out
+            return out, ok, None
         (band, level), free = self._ratios(groups, (self.boxes_, self.level_boxes_))
         severity, weight = np.zeros((band.shape[0], k)), np.zeros((band.shape[0], k))
         faults = self._own_faults()
@@ -347,7 +353,7 @@ class ConditionFeatures:
                     severity[:, j] = g.estimates.severity[fault]
                     weight[:, j] = g.estimates.curvature[fault] / np.maximum(free[RELATION_OF[fault]], 1e-300)
         out[ok] = np.concatenate([band, level, severity, weight], axis=1)
-        return out
+        return out, ok, groups[0].estimates  # the nominal fill comes first (:meth:`_estimates`)
 
     def _own_faults(self) -> list[str | None]:
         """Each state's own fault, None for healthy or where the sensors cannot test its relation."""

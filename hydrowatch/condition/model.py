@@ -165,10 +165,13 @@ class ConditionModel:
         """
         return self.judge_with_scores(windows, smoothing)[0]
 
-    def judge_with_scores(self, windows: np.ndarray, smoothing: int = 1) -> tuple[list[Verdict], np.ndarray]:
-        """:meth:`judge` and each window's band-box scores (``features_.transform``, (n, n_features)) in one pass."""
+    def judge_with_scores(self, windows: np.ndarray, smoothing: int = 1,
+                          rows: np.ndarray | None = None) -> tuple[list[Verdict], np.ndarray]:
+        """:meth:`judge` and each window's band-box scores (``features_.transform``, (n, n_features)) in one pass.
+
+        ``rows``: the windows' ``features_.transform_evidence`` when the caller has them already."""
         self._check_fitted()
-        rows = self.features_.transform_evidence(windows)
+        rows = self.features_.transform_evidence(windows) if rows is None else rows
         reasons = self.features_.window_reasons(windows)
         ratios = rows[:, : 2 * len(self.features_.feature_names_)]
         band = ratios[:, : len(self.features_.feature_names_)]

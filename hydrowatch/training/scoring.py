@@ -137,10 +137,11 @@ def _window_scores(bundle: ModelBundle, recording: Recording,
         model = bundle.condition
         temperature = bool(bundle.manifest.get("temperature")) and "temperature" in recording.channels
         raw = windows_from_recording(recording, bundle.window, bundle.hop, temperature=temperature)
-        verdicts, scores = model.judge_with_scores(raw, smoothing)  # one pass for verdicts and kl scores
+        rows, valid, estimates = model.features_.evidence_and_estimates(raw)  # one fit of the relations serves all
+        verdicts, scores = model.judge_with_scores(raw, smoothing, rows)
         starts = model.features_.window_starts(len(recording))
         return (starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states)),
-                features_degradation(model.features_, raw))
+                features_degradation(model.features_, raw, estimated=(valid, estimates)))
     health = bundle.health
     assert health is not None
     errors = bundle.errors(recording)[bundle.warmup:]
