@@ -95,3 +95,10 @@ def test_identify_command_prints_the_contract_json(tmp_path, capsys) -> None:
     assert "output column must be one of" in capsys.readouterr().err
     assert main(["identify", "--data", str(path), "--output", "speed", "--orders", "2,2"]) == 2
     assert "--orders must be 4" in capsys.readouterr().err
+    # a file with only the input and the output (no flow, no torque) is enough
+    pq.write_table(pa.table({"t": t, "voltage": u, "speed": y}), sparse := tmp_path / "speed-only.parquet")
+    assert main(["identify", "--data", str(sparse), "--output", "speed", "--model", "bj", "--orders", "2,2,1,1",
+                 "--delay", "2", "--json"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out)["parameters"] == document["parameters"]
+    assert main(["identify", "--data", str(sparse), "--output", "torque"]) == 2
+    assert "Got no ['torque']" in capsys.readouterr().err

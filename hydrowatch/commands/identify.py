@@ -9,6 +9,7 @@ from typing import Any
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io import read_recording
+from hydrowatch.recording import UNITS
 
 NAME = "identify"
 HELP = "identify one reference model (Box-Jenkins or NARX) from a recording and print it with its validation"
@@ -43,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _signals(args: argparse.Namespace) -> tuple[Any, Any]:
-    recording = read_recording(args.data)
+    # only the two columns are needed (a name that is no channel at all is refused just below)
+    recording = read_recording(args.data, required=[c for c in (args.input, args.output) if c in UNITS])
     for role, column in (("input", args.input), ("output", args.output)):
         if column not in recording.channels:
             raise DataError(

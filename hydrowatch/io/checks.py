@@ -7,12 +7,12 @@ one-line :class:`DataError` that names the file, the row (and its time) and the 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from hydrowatch.errors import DataError
-from hydrowatch.recording import OPTIONAL_CHANNELS, REQUIRED_CHANNELS, SAMPLE_RATE_HZ, UNITS
+from hydrowatch.recording import REQUIRED_CHANNELS, SAMPLE_RATE_HZ, UNITS
 
 FAULTS: tuple[str, ...] = ("load", "pump_leak", "motor_leak", "valve_leak", "valve_coil", "relief_spring")
 """Faults a recording may be labelled with (the plant's fault catalogue)."""
@@ -118,25 +118,29 @@ def nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
 
 
 def check_channels(
-    t: np.ndarray, channels: Mapping[str, np.ndarray], source: str | None = None
+    t: np.ndarray, channels: Mapping[str, np.ndarray], source: str | None = None,
+    required: Sequence[str] = REQUIRED_CHANNELS,
 ) -> dict[str, np.ndarray]:
     """Check required channels are present and NaN-free; drop optional channels that are all NaN.
+
+    ``required``: the channels this use needs (default every required channel of the plant; ``identify``
+    needs only its input and output). A channel outside it that is all NaN is dropped like an optional one.
 
     Returns
     -------
     dict of str to ndarray
         The channels to keep (an optional channel with no value at all is left out).
     """
-    missing = [c for c in REQUIRED_CHANNELS if c not in channels]
+    missing = [c for c in required if c not in channels]
     if missing:
         raise DataError(
-            f"columns {['t', *REQUIRED_CHANNELS]} must all be present. Got no {missing}. "
+            f"columns {['t', *required]} must all be present. Got no {missing}. "
             "Add them (units: " + ", ".join(f"{c} [{UNITS[c]}]" for c in missing) + ").",
             source,
         )
     kept = {}
     for name, values in channels.items():
-        if name in OPTIONAL_CHANNELS and np.isnan(values).all():
+        if name not in required and np.isnan(values).all():
             continue
         runs = nan_runs(values)
         if runs:

@@ -9,7 +9,7 @@ within a file are kept in ``recording.meta["labels"]`` (ndarray of str, shape (n
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +21,7 @@ from hydrowatch.io.codec import LABEL_FIELD, arrays_from_sensor_chunk, sensor_ch
 from hydrowatch.io.mcap_io import METADATA_NAME, McapWriter, Recovery, iter_messages, topic
 from hydrowatch.io.tabular import read_csv, read_parquet, write_table
 from hydrowatch.log import event, get_logger
-from hydrowatch.recording import SAMPLE_RATE_HZ, UNITS, Recording
+from hydrowatch.recording import REQUIRED_CHANNELS, SAMPLE_RATE_HZ, UNITS, Recording
 from hydrowatch.schemas import SCHEMA_VERSION
 
 SUFFIXES = (".mcap", ".parquet", ".csv")
@@ -160,7 +160,8 @@ def _read_mcap(path: Path, machine: str | None, recover: bool) -> tuple[np.ndarr
     return np.concatenate(times), columns, labels, meta
 
 
-def read_recording(path: str | Path, *, machine: str | None = None, recover: bool = False) -> Recording:
+def read_recording(path: str | Path, *, machine: str | None = None, recover: bool = False,
+                   required: Sequence[str] | None = None) -> Recording:
     """Read and check a recording; the format follows the suffix (.mcap, .parquet, .csv).
 
     Parameters
@@ -172,6 +173,9 @@ def read_recording(path: str | Path, *, machine: str | None = None, recover: boo
         Accept an unfinished MCAP file (writer killed) and return its complete chunks; the
         recording's ``meta["recovered"]`` then says how much was recovered. Without it such a
         file is an error.
+    required : sequence of str, optional
+        The channels the caller needs (default: every required channel of the plant). ``identify``
+        passes its input and output, so a CSV or Parquet file with only those columns reads.
 
     Raises
     ------
@@ -187,7 +191,7 @@ def read_recording(path: str | Path, *, machine: str | None = None, recover: boo
         table = read_csv(path) if suffix == ".csv" else read_parquet(path)
         t, channels, labels, meta = table.t, table.channels, table.labels, dict(table.meta)
     check_time_base(t, source)
-    channels = check_channels(t, channels, source)
+    channels = check_channels(t, channels, source, REQUIRED_CHANNELS if required is None else tuple(required))
     if meta.get("state") is not None:
         check_state(meta["state"], source, " in the file metadata")
     meta.pop("labels", None)
