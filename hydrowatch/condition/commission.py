@@ -249,7 +249,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         The fleet model (trained on one unit's health states).
     windows : ndarray, shape (m, window, 4 or 5)
         Consecutive raw windows of the unit in its healthy state on any working command
-        (:func:`~hydrowatch.condition.features.windows_from_recording` with the model's window and hop).
+        (:func:`~hydrowatch.condition.estimates.windows_from_recording` with the model's window and hop).
 
     Raises
     ------

@@ -7,6 +7,7 @@ fills the sensors a sparse configuration lacks from the nominal relations of
 anything, so it is dropped). :func:`parity_estimates` fits every relation once per window;
 :func:`relation_mse` gives each relation's mean squared residual when the parameters are held
 inside a box (a health state's severity band), which is what the health-state scores compare.
+:func:`windows_from_recording` cuts a recording into the raw windows of that layout (:data:`CHANNELS`).
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ import numpy as np
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.errors import DataError
+from hydrowatch.health.windows import check_window, sliding_windows
 from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
 from hydrowatch.plant.parameters import PlantParameters
-from hydrowatch.recording import INPUT, SENSORS
+from hydrowatch.recording import INPUT, SENSORS, Recording
 
 RELATIONS: tuple[str, ...] = ("load", "motor", "valve")
 """Component relations, in feature order."""
@@ -349,3 +351,22 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
                            for r in relations], axis=1)
         ratios.append(scores.reshape(m, -1))
     return ratios, free
+
+
+def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
+                           temperature: bool | None = None) -> np.ndarray:
+    """Raw windows of a recording, shape (n_windows, window, 4) or (n_windows, window, 5).
+
+    Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m], and the oil temperature
+    [°C] as 5th channel when ``temperature`` is True, or None (default) and the recording has
+    one; window k covers samples ``[k·hop, k·hop + window)``.
+    """
+    check_window(window, hop)
+    channels = list(CHANNELS)
+    has = TEMPERATURE in rec.channels
+    if temperature and not has:
+        raise DataError(f"recording must have a '{TEMPERATURE}' channel when temperature=True. "
+                        f"Got channels {sorted(rec.channels)}. Pass temperature=None to use it when present.")
+    if has and temperature is not False:
+        channels.append(TEMPERATURE)
+    return np.stack([sliding_windows(rec[c], window, hop) for c in channels], axis=-1)

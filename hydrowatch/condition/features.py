@@ -42,11 +42,11 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
-from hydrowatch.health.windows import check_window, sliding_windows, window_starts
+from hydrowatch.health.windows import check_window, window_starts
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.faults import FAULTS, fault_parameters, level_severity, parse_state
 from hydrowatch.plant.parameters import PlantParameters
-from hydrowatch.recording import SENSORS, Recording
+from hydrowatch.recording import SENSORS
 
 _log = get_logger(__name__)
 KINDS = ("scores", "severities")
@@ -54,25 +54,6 @@ BAND_MARGIN = 0.05
 """Relative widening of each severity band (the band edges are physics, the level is fitted)."""
 RELATION_OF: dict[str, str] = {"load": "load", "motor_leak": "motor", **{f: "valve" for f in E.parity.VALVE_HYPOTHESES}}
 """The relation in which each fault's parameter appears."""
-
-
-def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
-                           temperature: bool | None = None) -> np.ndarray:
-    """Raw windows of a recording, shape (n_windows, window, 4) or (n_windows, window, 5).
-
-    Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m], and the oil temperature
-    [°C] as 5th channel when ``temperature`` is True, or None (default) and the recording has
-    one; window k covers samples ``[k·hop, k·hop + window)``.
-    """
-    check_window(window, hop)
-    channels = list(E.CHANNELS)
-    has = E.TEMPERATURE in rec.channels
-    if temperature and not has:
-        raise DataError(f"recording must have a '{E.TEMPERATURE}' channel when temperature=True. "
-                        f"Got channels {sorted(rec.channels)}. Pass temperature=None to use it when present.")
-    if has and temperature is not False:
-        channels.append(E.TEMPERATURE)
-    return np.stack([sliding_windows(rec[c], window, hop) for c in channels], axis=-1)
 
 
 class ConditionFeatures:
