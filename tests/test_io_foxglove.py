@@ -151,3 +151,24 @@ def test_a_negative_sample_time_cannot_be_a_log_time(tmp_path: Path) -> None:
                                                                  ("voltage", "flow", "speed", "torque")})
     with FoxgloveWriter(tmp_path / "neg.mcap") as writer, pytest.raises(ValueError, match="t must be a finite time"):
         writer.write_message(f"{KEY}/sensors", chunk)
+
+
+def test_recorder_option_writes_the_same_json_as_the_export(tmp_path: Path) -> None:
+    """``hydrowatch record --foxglove``: the files the recorder writes hold what ``export --foxglove`` writes."""
+    from hydrowatch.bus.keys import parse_key
+    from hydrowatch.bus.pubsub import Message
+    from hydrowatch.io import encode_batch
+    from services.recorder.files import RecordingFiles
+
+    sent = [(f"{KEY}/sensors", _chunk(i)) for i in range(4)] + [(f"{KEY}/health", _verdict(0.0, "healthy", 0.9)),
+                                                                 (f"{KEY}/kl", _kl(0.0))]
+    files = RecordingFiles(tmp_path / "rec", flush_s=0.01, foxglove=True)
+    files.write_many([Message(parse_key(k), b, encode_batch(b), RECEIVED_NS + i, 0) for i, (k, b) in enumerate(sent)])
+    files.close()
+    (path,) = (tmp_path / "rec" / "f1" / "m1").glob("*.foxglove.mcap")
+    got, metadata = _read(path)
+    assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 400, f"/{KEY}/health": 1, f"/{KEY}/kl": 1}
+    assert metadata["hydrowatch"]["machine"] == "m1" and files.messages == len(sent)
+    log_ns, publish_ns, sample = got[f"/{KEY}/sensors"][250]
+    assert (log_ns, publish_ns) == (1_250_000_000, RECEIVED_NS + 2)
+    assert sample["speed"] == _chunk(2).column("speed")[50].as_py()
