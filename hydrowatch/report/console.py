@@ -9,6 +9,7 @@ print as JSON and returns those lines.
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
@@ -59,9 +60,10 @@ def train_text(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def train_next(out: str) -> str:
+def train_next(out: str, tracking_uri: str) -> str:
     """The closing line of ``hydrowatch train``: what to run next."""
-    return (f"next: hydrowatch score --model {out} --data RECORDINGS   (MLflow: mlflow ui; JSON: --json)")
+    return (f"next: hydrowatch score --model {out} --data RECORDINGS; the runs: mlflow ui --backend-store-uri "
+            f"{tracking_uri}")
 
 
 def score_text(result: Mapping[str, Any]) -> str:
@@ -99,7 +101,9 @@ def gap_text(report: Mapping[str, Any], source: str, written: Sequence[str]) -> 
     fit = report["fit"]
     lines.append("  held-out NRMSE nominal → calibrated → after: " + ", ".join(
         f"{s} {fit['nominal'][s]:.3f} → {fit['calibrated'][s]:.3f} → {fit['after'][s]:.3f}" for s in fit["nominal"]))
-    lines.append(f"  {report['summary']}")
+    first = re.match(r"(.+?[.!?])(?=\s+[A-Z]|$)", report["summary"], re.S)
+    lines.append(f"  {first.group(1) if first else report['summary']}"
+                 + (" (the rest in the report's summary)" if first and first.group(1) != report["summary"] else ""))
     lines.append(f"  wrote {', '.join(written)}")
     html = [w for w in written if w.endswith(".html")]
     lines.append(f"next: open {html[0]}" if html else "next: add --html OUT.html for the plots")
