@@ -172,3 +172,18 @@ def test_recorder_option_writes_the_same_json_as_the_export(tmp_path: Path) -> N
     log_ns, publish_ns, sample = got[f"/{KEY}/sensors"][250]
     assert (log_ns, publish_ns) == (1_250_000_000, RECEIVED_NS + 2)
     assert sample["speed"] == _chunk(2).column("speed")[50].as_py()
+
+
+def test_an_unfinished_recording_needs_recover(recording: Path, tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    cut = tmp_path / "cut.mcap"
+    data = recording.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])  # the recorder was killed: no summary, a half-written chunk
+    out = tmp_path / "cut.foxglove.mcap"
+    assert main(["export", str(cut), "--foxglove", "--out", str(out)]) == 2
+    assert "must be a finished MCAP" in capsys.readouterr().err and not out.exists()
+    assert main(["export", str(cut), "--foxglove", "--out", str(out), "--recover"]) == 0
+    assert "unfinished file" in capsys.readouterr().out
+    got, metadata = _read(out)
+    assert 0 < len(got[f"/{KEY}/sensors"]) < 1000 and len(got[f"/{KEY}/sensors"]) % 100 == 0
+    assert metadata["hydrowatch"]["machine"] == "m1"

@@ -217,7 +217,8 @@ class FoxgloveExport:
         left_out = f"; left out {sum(self.skipped.values())} status messages" if self.skipped else ""
         return (f"wrote {self.out}: {per_kind['sensors']} samples, {per_kind['health']} verdicts, "
                 f"{per_kind['kl']} relative-entropy windows on {len(self.written)} channels "
-                f"(JSON with JSON Schema, for Foxglove) from {self.messages_in} messages{left_out}")
+                f"(JSON with JSON Schema, for Foxglove) from {self.messages_in} messages{left_out}"
+                + (f"; {self.recovered}" if self.recovered else ""))
 
 
 def export_foxglove(source: str | Path, out: str | Path, *, recover: bool = False) -> FoxgloveExport:
