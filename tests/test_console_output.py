@@ -52,6 +52,10 @@ DEMO = {
     "accuracy": {"parity": {"training": 1.0, "duty_cycle": 0.964, "narrow_range": 0.91},
                  "bj": {"training": 0.99, "duty_cycle": 0.28, "narrow_range": 0.25}},
     "fleet": {"m1": "healthy", "m2": "pump_leak_alert", "m3": "healthy", "m4": "load_warning"},
+    "attention": [{"machine": "m2", "state": "pump_leak_alert", "since_s": 64.0, "probability": 0.93,
+                   "why": "most probable trained state (p = 0.93)"},
+                  {"machine": "m4", "state": "load_warning", "since_s": 2.5, "probability": 0.81,
+                   "why": "most probable trained state (p = 0.81)"}],
     "seconds": 181.6,
 }
 
@@ -138,8 +142,9 @@ def test_json_is_unchanged_when_stdout_is_not_a_terminal_or_json_is_asked(
              "flow 0.310 → 0.120 → 0.050, speed 0.200 → 0.100 → 0.090",
              "the valve relation breaks. (the rest in the report's summary)",
              "gap.json", "next: open "]),
-    ("demo", ["finished in 182 s: 2 of 4 machines need attention", "  m2       pump_leak_alert",
-              "  m4       load_warning", "healthy: m1, m3", "champion: parity",
+    ("demo", ["finished in 182 s: 2 of 4 machines need attention",
+              "  m2       pump_leak_alert since 64 s: most probable trained state (p = 0.93)",
+              "  m4       load_warning since 2 s", "healthy: m1, m3", "champion: parity",
               "bj       training 99.0 %, duty_cycle 28.0 %",
               "next: open demo/report.html"]),
 ])
@@ -158,3 +163,32 @@ def test_a_terminal_gets_a_short_summary_with_the_key_numbers(
         assert out.index("pump_leak_alert") < out.index("champion")
     if name == "gap":
         assert json.loads((commands / "gap.json").read_text()) == GAP  # the report file is written either way
+
+
+def test_the_fleet_comes_most_urgent_first_with_since_when_and_why() -> None:
+    """The demo report's first section and the demo summary's ``attention``: alerts, then faults never trained on,
+    then warnings, invalid, healthy; since = start of the current run of that state."""
+    from hydrowatch.report.demo import fleet_section
+    from hydrowatch.report.fleet_table import FleetTable
+
+    table = FleetTable()
+    verdicts = [("m0", "healthy", None), ("m1", "load_warning", None), ("m2", "healthy", None),
+                ("m5", "unknown", "no trained state explains the window (open-set rule)"),
+                ("m2", "pump_leak_alert", None), ("m2", "pump_leak_alert", None), ("m3", "invalid", "gap")]
+    for k, (machine, state, reason) in enumerate(verdicts):
+        table.update(machine, {"window_start": 5.0 * k, "window_end": 5.0 * k + 5, "state": state,
+                               "probability": 0.9 if reason is None else 0.0, "reason": reason})
+    assert list(table.by_urgency()) == ["m2", "m5", "m1", "m3", "m0"]
+    attention = table.attention()
+    assert [a["machine"] for a in attention] == ["m2", "m5", "m1", "m3"]
+    assert attention[0] == {"machine": "m2", "state": "pump_leak_alert", "since_s": 20.0, "probability": 0.9,
+                            "why": "most probable trained state (p = 0.90)"}
+    assert attention[1]["why"].startswith("no trained state explains")
+    states = ["healthy", "load_warning", "pump_leak_alert"]
+    live = {"table": table, "timelines": {"m0": [(0.0, 5.0, "healthy")]}, "truth": {"m0": [(0.0, "healthy")]}}
+    section = fleet_section(live, states)
+    assert section.title == "Fleet: which machines need attention"
+    assert "4 of 5 machines need attention: m2 (pump_leak_alert), m5 (unknown)" in section.parts[0]
+    rows = section.parts[1]
+    assert rows.index("<td>m2</td>") < rows.index("<td>m5</td>") < rows.index("<td>m1</td>") < rows.index(
+        "<td>m0</td>")

@@ -14,7 +14,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
-HEALTHY = "healthy"
+from hydrowatch.report.fleet_table import HEALTHY
 
 
 def json_output(asked: bool, stream: TextIO | None = None) -> bool:
@@ -113,10 +113,13 @@ def gap_text(report: Mapping[str, Any], source: str, written: Sequence[str]) -> 
 def demo_text(summary: Mapping[str, Any]) -> str:
     """Lines for ``hydrowatch demo``'s summary: the fleet first, then the models, then where things are."""
     fleet = summary["fleet"]
-    attention = {m: s for m, s in sorted(fleet.items()) if s != HEALTHY}
+    attention = summary.get("attention") or [{"machine": m, "state": s} for m, s in sorted(fleet.items())
+                                             if s != HEALTHY]
     lines = [f"hydrowatch demo finished in {summary['seconds']:.0f} s: "
              f"{len(attention)} of {len(fleet)} machines need attention"]
-    lines += [f"  {machine:<8} {state}" for machine, state in attention.items()]
+    for a in attention:
+        since = f" since {a['since_s']:.0f} s" if a.get("since_s") is not None else ""
+        lines.append(f"  {a['machine']:<8} {a['state']}{since}" + (f": {a['why']}" if a.get("why") else ""))
     healthy = [m for m, s in sorted(fleet.items()) if s == HEALTHY]
     if healthy:
         lines.append(f"  healthy: {', '.join(healthy)}")
