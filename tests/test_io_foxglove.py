@@ -187,3 +187,15 @@ def test_an_unfinished_recording_needs_recover(recording: Path, tmp_path: Path,
     got, metadata = _read(out)
     assert 0 < len(got[f"/{KEY}/sensors"]) < 1000 and len(got[f"/{KEY}/sensors"]) % 100 == 0
     assert metadata["hydrowatch"]["machine"] == "m1"
+
+
+def test_non_finite_scores_are_left_out_because_json_has_no_nan() -> None:
+    from hydrowatch.io.foxglove import kl_windows
+
+    batch = _kl(4.0)
+    values = batch.column("relative_entropy").to_pylist()
+    values[3] = float("inf")  # speed × load_alert
+    batch = batch.set_column(4, "relative_entropy", pa.array(values))
+    ((log_ns, window),) = list(kl_windows(batch, "test"))
+    assert log_ns == 6_000_000_000 and window["relative_entropy"]["speed"] == {"healthy": pytest.approx(4.2)}
+    json.dumps(window, allow_nan=False)

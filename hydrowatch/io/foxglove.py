@@ -91,7 +91,8 @@ def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str
         properties["relative_entropy"] = {
             "type": "object",
             "description": "Relative entropy of the window's prediction errors from each state's base distribution, "
-                           "per sensor and state [nats].",
+                           "per sensor and state [nats]; parity bundles: the score of each component relation "
+                           "(load, motor, valve) under each state [1, >= 1].",
             "properties": {s: {**per_state, "properties": {k: number for k in states}} for s, states in rows.items()},
             "additionalProperties": per_state}
         required.append("relative_entropy")
@@ -122,7 +123,8 @@ def verdicts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str,
     """``(log_time_ns, verdict)`` per row of a health verdict; ``probabilities`` as {state: p}."""
     for row in batch.to_pylist():
         verdict = {k: v for k, v in row.items() if k != "probabilities" and _finite(v)}
-        verdict["probabilities"] = {p["state"]: p["probability"] for p in row["probabilities"] or []}
+        verdict["probabilities"] = {p["state"]: p["probability"] for p in row["probabilities"] or []
+                                    if _finite(p["probability"])}
         yield _ns(row["window_end"], where, "window_end"), verdict
 
 
@@ -131,7 +133,8 @@ def kl_windows(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[st
     windows: dict[tuple[float, float, str], dict[str, dict[str, float]]] = {}
     for row in batch.to_pylist():
         rows = windows.setdefault((row["window_start"], row["window_end"], row["model_version"]), {})
-        rows.setdefault(row["sensor"], {})[row["state"]] = row["relative_entropy"]
+        if _finite(row["relative_entropy"]):  # a non-finite score is left out (JSON has no NaN or inf)
+            rows.setdefault(row["sensor"], {})[row["state"]] = row["relative_entropy"]
     for (start, end, version), rows in windows.items():
         yield _ns(end, where, "window_end"), {"window_start": start, "window_end": end, "model_version": version,
                                               "relative_entropy": rows}
