@@ -3,8 +3,10 @@
 Simulates identification data, trains a parity bundle and the study's method with Box-Jenkins and
 NARX reference models (MLflow), measures accuracy on other seeds and commands, runs a live fleet
 with faults appearing through recorder and scorer processes on a loopback bus with the live table,
-and writes ``<out>/report.html``. The defaults finish in a few minutes on 2 cores; ``--full-plan``
-and ``--narx 15,15,35`` give the study's sizes.
+and writes ``<out>/report.html``. Prints its summary as JSON with ``--json`` or when stdout is not a
+terminal, and on a terminal a few lines: the fleet first, the models, where the files are. The
+defaults finish in a few minutes on 2 cores; ``--full-plan`` and ``--narx 15,15,35`` give the
+study's sizes.
 """
 
 from __future__ import annotations
@@ -30,11 +32,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "12 windows, so a changed machine is named within the minute after)")
     parser.add_argument("--speed", type=float, default=5.0, help="live fleet: simulated seconds per second")
     parser.add_argument("--accuracy-seconds", type=float, default=60.0, help="seconds per state of the accuracy runs")
+    parser.add_argument("--json", action="store_true",
+                        help="print the summary as JSON (the default when stdout is not a terminal)")
     add_training_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo and print its JSON summary; returns 0."""
+    """Run the demo and print its summary (JSON or for people); returns 0."""
+    from hydrowatch.report.console import demo_text, json_output
     from hydrowatch.training.demo import DemoSettings, run_demo
 
     base = settings_from_args(args)
@@ -45,5 +50,5 @@ def run(args: argparse.Namespace) -> int:
         tracking=args.tracking_uri, seed=args.seed, accuracy_seconds=args.accuracy_seconds,
         live_seconds=args.live_seconds, speed=args.speed)
     summary = run_demo(settings, show=sys.stderr.isatty())
-    print(json.dumps(summary, default=str))
+    print(json.dumps(summary, default=str) if json_output(args.json) else demo_text(summary))
     return 0

@@ -1,7 +1,8 @@
 """``hydrowatch score``: offline verdicts of recordings, window by window (contract: ``score --json``).
 
-One JSON object per input file on stdout with ``--json``; otherwise one line per file (counts and
-accuracy). The work is :func:`hydrowatch.training.scoring.score_recording`.
+One JSON object per input file on stdout with ``--json`` or when stdout is not a terminal; on a
+terminal a few lines per file (counts, accuracy, last verdict, forecast; :mod:`hydrowatch.report.console`).
+The work is :func:`hydrowatch.training.scoring.score_recording`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--model``, ``--data``, ``--json``, ``--tracking-uri``, ``--smoothing``."""
     parser.add_argument("--model", required=True, help="model bundle folder or models:/NAME@ALIAS")
     parser.add_argument("--data", required=True, type=Path, help="recording file or folder of recordings")
-    parser.add_argument("--json", action="store_true", help="one JSON object per file (the contract's format)")
+    parser.add_argument("--json", action="store_true",
+                        help="one JSON object per file (the contract's format; default when stdout is not a terminal)")
     parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
     parser.add_argument("--smoothing", type=int, default=None, metavar="N",
                         help="parity bundles: pool each verdict's evidence over the machine's last N valid windows "
@@ -29,18 +31,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Score every file; returns 0."""
     from hydrowatch.io import read_recording
+    from hydrowatch.report.console import SCORE_NEXT, json_output, score_text
     from hydrowatch.training import load_bundle, recording_files, score_recording
     from hydrowatch.training.scoring import smoothing_for
 
     bundle = load_bundle(args.model, args.tracking_uri)
     smoothing = smoothing_for(bundle, args.smoothing)
+    as_json = json_output(args.json)
     for path in recording_files(args.data):
         result = score_recording(bundle, read_recording(path), smoothing)
-        if args.json:
-            print(json.dumps(result), flush=True)
-        else:
-            s = result["summary"]
-            accuracy = "" if s["accuracy"] is None else f" accuracy={s['accuracy']:.4f}"
-            counts = " ".join(f"{k}={v}" for k, v in sorted(s["counts"].items()))
-            print(f"{path}: windows={s['windows']} {counts}{accuracy}", flush=True)
+        print(json.dumps(result) if as_json else score_text(result), flush=True)
+    if not as_json:
+        print(f"model {bundle.version[:19]}… ({args.model}); {SCORE_NEXT}")
     return 0

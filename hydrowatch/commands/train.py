@@ -3,7 +3,9 @@
 Prints one JSON summary per trained bundle (version, method, states, NRMSE per sensor for the
 entropy method, test accuracy, per-class recall, MLflow run id and registered model URI, and with
 ``--check-seconds`` the accuracy on other commands). ``--method both`` trains ``OUT/entropy`` and
-``OUT/parity`` as two runs to compare. The work is :func:`hydrowatch.training.pipeline.train_each`.
+``OUT/parity`` as two runs to compare. The JSON goes out with ``--json`` or when stdout is not a
+terminal; on a terminal a short summary per bundle (:mod:`hydrowatch.report.console`). The work is
+:func:`hydrowatch.training.pipeline.train_each`.
 """
 
 from __future__ import annotations
@@ -24,18 +26,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path,
                         help="model bundle folder to write (--method both: OUT/entropy and OUT/parity)")
     parser.add_argument("--report", type=Path, default=None, help="also keep the plots and tables in this folder")
+    parser.add_argument("--json", action="store_true",
+                        help="one JSON summary per bundle (the default when stdout is not a terminal)")
     add_training_arguments(parser)
     add_tracking_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train, save, log; print the JSON summaries; returns 0."""
+    """Train, save, log; print the summaries (JSON or for people); returns 0."""
+    from hydrowatch.report.console import json_output, train_next, train_text
     from hydrowatch.training.pipeline import train_each
 
+    as_json, tracking_uri = json_output(args.json), ""
     for summary in train_each(
         args.data, args.out, settings_list_from_args(args), report_dir=args.report, tracking=args.tracking_uri,
         experiment=args.experiment, model_name=None if args.no_register else args.model_name, alias=args.alias,
         check_seconds=args.check_seconds,
     ):
-        print(json.dumps(summary), flush=True)
+        print(json.dumps(summary) if as_json else train_text(summary), flush=True)
+        tracking_uri = summary["tracking_uri"]
+    if not as_json:
+        print(train_next(str(args.out), tracking_uri))
     return 0

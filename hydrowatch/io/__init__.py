@@ -2,7 +2,8 @@
 
 ``read_recording`` / ``write_recording`` pick the format by suffix (.mcap, .parquet, .csv);
 ``encode_batch`` / ``decode_batch`` are the bus and MCAP message codec; ``McapWriter``,
-``iter_messages`` and ``summarize`` work on MCAP files, finished or not. See docs/formats.md.
+``iter_messages`` and ``summarize`` work on MCAP files, finished or not; ``hydrowatch.io.foxglove``
+re-encodes them as JSON that Foxglove plots. See docs/formats.md.
 """
 
 from hydrowatch.io.codec import (

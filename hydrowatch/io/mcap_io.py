@@ -20,7 +20,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 import pyarrow as pa
 import zstandard
@@ -111,7 +111,7 @@ class McapWriter:
         if metadata:
             self._writer.add_metadata(METADATA_NAME, _metadata_strings(metadata))
 
-    def __enter__(self) -> McapWriter:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(
@@ -173,13 +173,29 @@ class McapWriter:
         publish_time_ns: int | None = None,
     ) -> None:
         """Append an already encoded payload (a recorder storing what it received, unchanged)."""
+        known = self._channels.get(topic)
+        channel_id = known[0] if known is not None and known[1] == name and known[2] == version else (
+            self._channel(topic, name, version))
+        self.write_channel(channel_id, data, log_time_ns, publish_time_ns)
+
+    def add_channel(
+        self, topic: str, message_encoding: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+        metadata: Mapping[str, str] | None = None,
+    ) -> int:
+        """Register a channel of another encoding (e.g. JSON for viewers) and its schema; returns its id
+        for :meth:`write_channel`."""
+        schema_id = self._writer.register_schema(name=schema_name, encoding=schema_encoding, data=schema_data)
+        return self._writer.register_channel(
+            topic=topic, message_encoding=message_encoding, schema_id=schema_id, metadata=dict(metadata or {}))
+
+    def write_channel(
+        self, channel_id: int, data: bytes, log_time_ns: int, publish_time_ns: int | None = None
+    ) -> None:
+        """Append an encoded message on a registered channel (log and publish time, ns, >= 0)."""
         if self.closed:
             raise DataError("writer must be open to write. Got a closed one.", str(self.path))
         if log_time_ns < 0:
             raise ParameterError(f"log_time_ns must be >= 0. Got {log_time_ns}.")
-        known = self._channels.get(topic)
-        channel_id = known[0] if known is not None and known[1] == name and known[2] == version else (
-            self._channel(topic, name, version))
         log_time_ns = int(log_time_ns)
         publish = log_time_ns if publish_time_ns is None else int(publish_time_ns)
         closed = self._writer.add_encoded(channel_id, log_time_ns, data, publish, self.messages)

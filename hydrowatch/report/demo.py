@@ -1,4 +1,5 @@
-"""The demo's HTML report: training runs, accuracy on other seeds and commands, the live fleet's timelines."""
+"""The demo's HTML report: the live fleet first (which machines need attention, since when, why), then the
+models, their accuracy on other seeds and commands, and the training detail."""
 
 from __future__ import annotations
 
@@ -28,14 +29,20 @@ def accuracy_section(accuracy: Mapping[str, list[dict[str, Any]]]) -> Section:
 
 
 def fleet_section(live: Mapping[str, Any], states: list[str]) -> Section:
-    """The live fleet: final table and per-machine timelines of verdicts and of the true labels."""
+    """The live fleet: machines most urgent first (state, since when, why), then timelines of verdicts and of
+    the true labels."""
     table = live["table"]
-    section = Section("Live fleet on the bus").text(
-        "m00 healthy, m01 load warning throughout, m02-m04 develop a load fault, a pump leak and a motor leak from "
-        "t = 20 s to alert at t = 80 s, m05 a valve leak the model was never trained on (it should read 'unknown').")
-    section.table(["machine", "state", "probability", "since [s]", "last window end [s]", "windows", "reason"],
-                  [[m, r.state, r.probability, r.since_s, r.last_s, r.windows, r.reason]
-                   for m, r in table.rows().items()])
+    rows = table.by_urgency()
+    attention = table.attention()
+    section = Section("Fleet: which machines need attention").text(
+        f"{len(attention)} of {len(rows)} machines need attention"
+        + (": " + ", ".join(f"{a['machine']} ({a['state']})" for a in attention) + "." if attention else "."))
+    section.table(["machine", "state", "since [s]", "probability", "why", "last window end [s]", "windows"],
+                  [[m, r.state, r.since_s, r.probability, r.why(), r.last_s, r.windows] for m, r in rows.items()])
+    section.text(
+        "The simulated fleet: m00 healthy, m01 load warning throughout, m02-m04 develop a load fault, a pump leak "
+        "and a motor leak from t = 20 s to alert at t = 80 s, m05 a valve leak the model was never trained on "
+        "(it should read 'unknown').")
     section.image(timeline_png(live["timelines"], states), "verdict timelines")
     truth = {m: [(t, t + 0.1, s) for t, s in points] for m, points in live["truth"].items()}
     section.text("True labels of the simulated machines (nearest named level of the current fault):")
@@ -47,10 +54,9 @@ def write_demo_report(path: str | Path, results: Mapping[str, TrainingResult],
                       accuracy: Mapping[str, list[dict[str, Any]]], live: Mapping[str, Any], champion: str) -> Path:
     """Write the demo's HTML report; returns its path."""
     states = next(iter(results.values())).bundle.states
-    sections = [Section("Summary").text(
+    sections = [fleet_section(live, states), Section("Models").text(
         f"{len(results)} health models were trained and tracked in MLflow ({', '.join(results)}); '{champion}', the "
         "best on the working duty cycle, holds the registry alias 'champion' and scores the live fleet.")]
-    sections += [training_section(r, f"Training: {kind}") for kind, r in results.items()]
     sections.append(accuracy_section(accuracy))
-    sections.append(fleet_section(live, states))
+    sections += [training_section(r, f"Training: {kind}") for kind, r in results.items()]
     return write_html(path, "hydrowatch demo", sections)

@@ -7,6 +7,10 @@ from typing import Any
 
 import pyarrow as pa
 
+from hydrowatch.verdict import INVALID, UNKNOWN
+
+HEALTHY = "healthy"
+
 
 @dataclass
 class MachineRow:
@@ -34,6 +38,25 @@ class MachineRow:
     reason: str | None
     windows: int
 
+    def why(self) -> str:
+        """Why the machine is in its state, for people: the verdict's reason, else its probability."""
+        if self.reason:
+            return self.reason
+        return "" if self.state == HEALTHY else f"most probable trained state (p = {self.probability:.2f})"
+
+    def to_dict(self, machine: str) -> dict[str, Any]:
+        """``machine``, ``state``, ``since_s``, ``probability``, ``why``: one entry of the demo's ``attention``."""
+        return {"machine": machine, "state": self.state, "since_s": self.since_s, "probability": self.probability,
+                "why": self.why()}
+
+
+def urgency(state: str) -> int:
+    """Rank of a verdict state, most urgent first: 0 ``*_alert``, 1 ``unknown`` (a fault never trained on),
+    2 ``*_warning``, 3 ``invalid`` (no verdict possible), 4 ``healthy``."""
+    if state.endswith("_alert"):
+        return 0
+    return {UNKNOWN: 1, INVALID: 3, HEALTHY: 4}.get(state, 2)
+
 
 class FleetTable:
     """Latest verdict per machine; ``update`` takes one verdict row, ``rows``/``render`` read."""
@@ -53,6 +76,14 @@ class FleetTable:
     def rows(self) -> dict[str, MachineRow]:
         """Machine → row, sorted by machine."""
         return dict(sorted(self._rows.items()))
+
+    def by_urgency(self) -> dict[str, MachineRow]:
+        """Machine → row, most urgent first (:func:`urgency`), then longest in that state, then by machine."""
+        return dict(sorted(self._rows.items(), key=lambda kv: (urgency(kv[1].state), kv[1].since_s, kv[0])))
+
+    def attention(self) -> list[dict[str, Any]]:
+        """The machines that are not healthy, most urgent first, as :meth:`MachineRow.to_dict`."""
+        return [row.to_dict(m) for m, row in self.by_urgency().items() if row.state != HEALTHY]
 
     def render(self) -> str:
         """The table as text, one line per machine."""

@@ -175,5 +175,6 @@ def run_demo(s: DemoSettings, *, show: bool = False) -> dict[str, Any]:
         "training": summaries,
         "accuracy": {k: summaries[k]["checks"] for k in accuracy},
         "fleet": {m: r.state for m, r in live["table"].rows().items()},
+        "attention": live["table"].attention(),
         "seconds": round(time.monotonic() - t0, 1),
     }

@@ -56,6 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="on stop, keep recording what is still arriving for up to this many seconds (default 20)")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask publishers' history for chunks missing from a machine's stream")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="write JSON that Foxglove plots (*.foxglove.mcap) instead of Arrow: for a few machines; "
+                             "hydrowatch export --foxglove converts Arrow recordings later")
     parser.add_argument("--heartbeat", type=float, default=1.0, metavar="SECONDS",
                         help="seconds between status heartbeats with the message counters (default 1)")
     add_bus_arguments(parser)
@@ -70,7 +73,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     files = RecordingFiles(
         args.out, chunk_size=args.chunk_size, compression=args.compression, flush_s=args.flush,
         rotate_bytes=int(args.rotate_mb * 1024 * 1024), rotate_s=args.rotate_s,
-        extra_metadata={"recorder_keys": keys, "shard": str(args.shard)},
+        extra_metadata={"recorder_keys": keys, "shard": str(args.shard)}, foxglove=args.foxglove,
     )
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     fleet = args.fleet if args.fleet != "*" else "all"

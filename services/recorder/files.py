@@ -5,11 +5,14 @@ first message (on a worker thread: the machine's messages wait in memory for the
 takes), so its ``hydrowatch`` metadata (fleet, machine, state, schema_version, units) is complete
 from the start and survives a crash. It rotates when it grows past ``rotate_bytes`` or spans
 ``rotate_s`` of wall-clock time. Chunks close every ``chunk_size`` bytes or ``flush_s`` seconds,
-whichever comes first: that bounds what a ``kill -9`` can lose.
+whichever comes first: that bounds what a ``kill -9`` can lose. With ``foxglove`` the files are
+``<UTC start>-<seq>.foxglove.mcap`` and hold JSON for Foxglove instead of the Arrow payloads
+(:class:`hydrowatch.io.foxglove.FoxgloveWriter`; log time = sample time, publish time = receive time).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Iterable
@@ -19,8 +22,13 @@ from pathlib import Path
 
 from hydrowatch.bus.keys import Key
 from hydrowatch.bus.pubsub import Message
+from hydrowatch.errors import DataError
+from hydrowatch.io.foxglove import FoxgloveWriter
 from hydrowatch.io.mcap_io import McapWriter
+from hydrowatch.log import event, get_logger
 from hydrowatch.schemas import SCHEMA_VERSION, schema_name, schema_version, units
+
+log = get_logger(__name__)
 
 OPENERS = 4
 """Threads that create folders and files: creating one took 0.1-3 ms of wall time (disk), during
@@ -56,6 +64,9 @@ class RecordingFiles:
         Start a new file after this many seconds.
     extra_metadata : dict
         Added to every file's ``hydrowatch`` metadata (e.g. recorder id, shard).
+    foxglove : bool
+        Write JSON that Foxglove plots (samples, verdicts, relative entropies; heartbeats left out)
+        instead of the payloads as received. Costs ~5 µs per sample: for a few machines on a bench.
     """
 
     out: Path
@@ -65,8 +76,11 @@ class RecordingFiles:
     rotate_bytes: int = 256 * 1024 * 1024
     rotate_s: float = 3600.0
     extra_metadata: dict = field(default_factory=dict)
+    foxglove: bool = False
     files_written: list[Path] = field(default_factory=list)
     messages: int = 0
+    unwritable: dict[str, int] = field(default_factory=dict)
+    """Per key, messages a Foxglove recording could not carry (a NaN or negative sample time), left out."""
     _open: dict[tuple[str, str], _Open] = field(default_factory=dict)
     _opening: dict[tuple[str, str], tuple[Future[_Open], list[Message]]] = field(default_factory=dict)
     _sequence: int = 0
@@ -79,7 +93,7 @@ class RecordingFiles:
         folder = self.out / fleet / machine
         folder.mkdir(parents=True, exist_ok=True)
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-        path = folder / f"{stamp}-{sequence:04d}.mcap"
+        path = folder / f"{stamp}-{sequence:04d}{'.foxglove' if self.foxglove else ''}.mcap"
         batch = message.batch
         state = None
         if "state" in batch.schema.names and batch.num_rows:
@@ -92,8 +106,9 @@ class RecordingFiles:
             "units": units(batch.schema),
             **self.extra_metadata,
         }
-        writer = McapWriter(path, chunk_size=self.chunk_size, compression=self.compression, metadata=metadata,
-                            flush_every_s=self.flush_s)
+        kind = FoxgloveWriter if self.foxglove else McapWriter
+        writer = kind(path, chunk_size=self.chunk_size, compression=self.compression, metadata=metadata,
+                      flush_every_s=self.flush_s)
         return _Open(writer, time.monotonic())
 
     def _start_file(self, machine: tuple[str, str], message: Message) -> None:
@@ -146,10 +161,19 @@ class RecordingFiles:
                 message.key.topic == "sensors",
             )
         topic, name, version, sensors = channel
-        publish = message.publish_time_ns
-        if sensors and (start := message.start_time()) is not None and math.isfinite(start):
-            publish = min(max(0, int(round(start * 1e9))), MAX_TIME_NS)  # else (NaN t) the publish time as sent
-        current.writer.write_encoded(topic, message.payload, message.receive_time_ns, name, version, publish)
+        if isinstance(current.writer, FoxgloveWriter):
+            try:
+                current.writer.write_message(topic, message.batch, message.receive_time_ns)
+            except DataError as exc:  # a sample time JSON cannot carry as a log time (NaN, negative): left out
+                self.unwritable[topic] = self.unwritable.get(topic, 0) + 1
+                if self.unwritable[topic] == 1:
+                    event(log, "message left out of the Foxglove recording", logging.WARNING, key=topic, reason=exc)
+                return
+        else:
+            publish = message.publish_time_ns
+            if sensors and (start := message.start_time()) is not None and math.isfinite(start):
+                publish = min(max(0, int(round(start * 1e9))), MAX_TIME_NS)  # else (NaN t) the publish time as sent
+            current.writer.write_encoded(topic, message.payload, message.receive_time_ns, name, version, publish)
         current.messages += 1
         self.messages += 1
 
