@@ -204,8 +204,9 @@ def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path,
     assert ready.wait(30)
     try:
         code = main(["up", "--services", "plant,record,trainer,scorer", "--machines", "2", "--states",
-                     "healthy,load_warning", "--speed", "20", "--seconds", "110", "--bus-port", str(port),
-                     "--retrain", "30", "--fleet", FLEET, "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"])
+                     "healthy,load_warning", "--speed", "20", "--seconds", "70", "--bus-port", str(port),
+                     "--retrain", "20", "--method", "parity", "--fleet", FLEET,
+                     "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"])
     finally:
         done.set()
         listener.join(timeout=10)

@@ -16,6 +16,7 @@ from hydrowatch.bus.launch import ServiceSpec, supervise
 from hydrowatch.bus.service import command_run
 from hydrowatch.bus.session import DEFAULT_PORT, BusSettings, free_port, open_session
 from hydrowatch.errors import ParameterError
+from hydrowatch.training.options import DEFAULT_CLI_METHOD, GROUPS, METHODS
 
 NAME = "up"
 HELP = "start plant, recorder (and other services) as local processes on one loopback bus; Ctrl-C stops all"
@@ -41,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--retrain", type=float, default=60.0,
                         help="trainer: seconds between trainings on the recorder's folder (default 60)")
     parser.add_argument("--models", type=Path, default=Path("models/latest"), help="trainer: bundle folder")
+    parser.add_argument("--method", choices=(*METHODS, *GROUPS), default=DEFAULT_CLI_METHOD,
+                        help=f"trainer: health method(s), as `hydrowatch train` (default {DEFAULT_CLI_METHOD})")
     parser.add_argument("--tracking-uri", default=None,
                         help="MLflow tracking URI shared by trainer and scorer (default as `hydrowatch train`)")
 
@@ -60,7 +63,8 @@ def service_specs(args: argparse.Namespace, port: int) -> list[ServiceSpec]:
         "record": ("--fleet", args.fleet, "--out", str(args.out), *bus,
                    *(("--rotate-s", str(max(args.retrain / 2.0, 10.0))) if "trainer" in names else ())),
         # not on the bus: it reads the recorder's folder and registers in MLflow, which the scorer follows
-        "trainer": ("--data", str(args.out), "--out", str(args.models), "--every", str(args.retrain), *tracking),
+        "trainer": ("--data", str(args.out), "--out", str(args.models), "--every", str(args.retrain),
+                    "--method", args.method, *tracking),
         "scorer": ("--fleet", args.fleet, "--follow-alias", str(FOLLOW_S), *tracking, *bus),
         "watch": ("--fleet", args.fleet, *bus),
     }
