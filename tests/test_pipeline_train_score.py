@@ -51,6 +51,10 @@ def test_train_prints_summary_and_registers(trained: dict, capsys: pytest.Captur
     assert run.data.params["bj.nb"] == "3" and run.data.params["plan.window"] == "1000"
     assert run.data.metrics["test_accuracy"] == summary["test_accuracy"]
     assert {"nrmse.flow", "Q.speed", "recall.load_alert"} <= set(run.data.metrics)
+    # the run spans the training (MLflow shows its duration), in an experiment MLflow opens as model training
+    assert (run.info.end_time - run.info.start_time) / 1000 >= summary["seconds"] - 0.05  # seconds rounded to 0.1
+    experiment = mlflow.MlflowClient().get_experiment(run.info.experiment_id)
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
     artifacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "report")}
     assert {"report/confusion_matrix.png", "report/errors_speed.png", "report/relative_entropy.csv"} <= artifacts
 

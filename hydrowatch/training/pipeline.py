@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ def train_and_track(
     states must be simulator states). ``skip_unreadable`` leaves out files that cannot be read yet
     (see :func:`read_labelled`).
     """
+    started = time.time()
     result = train(read_labelled(data, skip_unreadable=skip_unreadable), settings)
     result.bundle.save(out)
     checks = [measure_accuracy(result.bundle, command=c, seconds=check_seconds, seed=check_seed)
@@ -55,6 +57,7 @@ def train_and_track(
             report_dir=folder, tracking=tracking, experiment=experiment,
             run_name=f"{settings.name}-{result.bundle.version[7:]}", model_name=model_name, alias=alias,
             tags={"method": settings.method, "reference": settings.name, "bundle_version": result.bundle.version},
+            started_s=started,
         )
     summary = {**result.summary(), "out": str(out), "run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"],
                "model_uri": logged["model_uri"], "registered_version": logged["version"]}

@@ -54,12 +54,22 @@ def _client(uri: str) -> Any:
     return MlflowClient(tracking_uri=uri, registry_uri=uri)
 
 
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
+"""The experiment tag MLflow's UI reads to open an experiment in its model-training view; without it MLflow 3
+infers a GenAI experiment and opens traces and tokens (issue 16)."""
+
+
 def _experiment_id(client: Any, name: str, uri: str) -> str:
+    """The experiment's id, created when missing, and marked a model-training experiment (:data:`EXPERIMENT_KIND`)."""
     found = client.get_experiment_by_name(name)
-    if found is not None:
-        return str(found.experiment_id)
-    root = _artifact_root(uri)
-    return str(client.create_experiment(name, artifact_location=f"{root}/{name}" if root else None))
+    if found is None:
+        root = _artifact_root(uri)
+        return str(client.create_experiment(name, artifact_location=f"{root}/{name}" if root else None,
+                                            tags=EXPERIMENT_KIND))
+    for key, value in EXPERIMENT_KIND.items():
+        if found.tags.get(key) != value:
+            client.set_experiment_tag(found.experiment_id, key, value)
+    return str(found.experiment_id)
 
 
 def _finite(metrics: dict[str, float]) -> dict[str, float]:
@@ -78,8 +88,12 @@ def log_training(
     model_name: str | None = DEFAULT_MODEL_NAME,
     alias: str | None = DEFAULT_ALIAS,
     tags: dict[str, str] | None = None,
+    started_s: float | None = None,
 ) -> dict[str, Any]:
     """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``model_uri``, ``version``.
+
+    ``started_s`` (s since the Unix epoch): when the training began; the run then spans the training, so MLflow shows
+    its duration (default: the run starts when logging does).
 
     Parameters
     ----------
@@ -99,7 +113,10 @@ def log_training(
     uri = tracking_uri(tracking)
     client = _client(uri)
     experiment_id = _experiment_id(client, experiment, uri)
-    with mlflow.start_run(experiment_id=experiment_id, run_name=run_name) as run:
+    begun = None if started_s is None else client.create_run(experiment_id, start_time=int(started_s * 1000),
+                                                              run_name=run_name).info.run_id
+    with mlflow.start_run(run_id=begun, experiment_id=None if begun else experiment_id,
+                          run_name=None if begun else run_name) as run:
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
         mlflow.log_metrics(_finite(metrics))
         if tags:
