@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydrowatch.condition import parity
-from hydrowatch.condition.estimates import ParityEstimates, check_windows, parity_estimates, window_signals
+from hydrowatch.condition.estimates import ParityEstimates
 from hydrowatch.condition.features import RELATION_OF, ConditionFeatures
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
 from hydrowatch.plant.parameters import PlantParameters
@@ -226,16 +226,9 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
     """:func:`window_degradation` of one machine's consecutive raw windows, shape (n, window, 4 or 5), on the unit
     that fitted (or was commissioned into) ``features``: its nominal parameters, sensors and oil coefficient.
 
-    ``estimated``: (valid-window mask, their estimates at the nominal fill) when the caller fitted the relations
-    already (:meth:`ConditionFeatures.evidence_and_estimates`: one fit serves the verdicts and the index)."""
-    if estimated is None:
-        w = check_windows(windows, features.window)
-        valid = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
-        p = features.nominal_
-        estimates = (parity_estimates(window_signals(w[valid], features.sensors, p, features.viscosity_coefficient, p),
-                                      p) if valid.any() else None)
-    else:
-        valid, estimates = estimated
+    The estimates are those of :meth:`ConditionFeatures.evidence_and_estimates`; ``estimated`` (its valid-window mask
+    and estimates) when the caller has them already, so that one fit serves the verdicts and the index."""
+    valid, estimates = features.evidence_and_estimates(windows)[1:] if estimated is None else estimated
     if estimates is None or not valid.any():
         empty = {f: np.full(valid.size, np.nan) for f in FAULTS}
         return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})

@@ -14,6 +14,7 @@ import logging
 import math
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -113,10 +114,9 @@ def log_training(
     uri = tracking_uri(tracking)
     client = _client(uri)
     experiment_id = _experiment_id(client, experiment, uri)
-    begun = None if started_s is None else client.create_run(experiment_id, start_time=int(started_s * 1000),
-                                                              run_name=run_name).info.run_id
-    with mlflow.start_run(run_id=begun, experiment_id=None if begun else experiment_id,
-                          run_name=None if begun else run_name) as run:
+    start_ms = int((time.time() if started_s is None else started_s) * 1000)
+    begun = client.create_run(experiment_id, start_time=start_ms, run_name=run_name).info.run_id
+    with mlflow.start_run(run_id=begun) as run:
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
         mlflow.log_metrics(_finite(metrics))
         if tags:

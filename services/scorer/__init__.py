@@ -37,6 +37,7 @@ from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import freeze_heap, service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.bus.takeover import release, sharded
+from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
@@ -157,8 +158,6 @@ def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | No
     """The model to start with. A registry alias followed with ``--follow-alias`` that does not exist yet (a trainer
     started beside the scorer has not registered its first model) is looked for again every ``--follow-alias``
     seconds, logged once; None when ``stop`` comes first. Anything else that cannot be loaded raises."""
-    from hydrowatch.errors import DataError
-
     waiting = args.follow_alias > 0 and str(args.model).startswith("models:/")
     logged = False
     while True:
