@@ -272,7 +272,7 @@ def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | N
     for i in range(windows.shape[0]):
         why = None
         for j, c in enumerate(used):
-            if bad[i, j]:
+            if bad[i, j] and not (c == WIDTH and bad[i, j] == windows.shape[1]):  # all NaN: temperature unknown
                 why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
                 break
             if 0 < c < WIDTH and stuck[i, j]:

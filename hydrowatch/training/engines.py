@@ -28,8 +28,9 @@ from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.reference import StreamState
 from hydrowatch.verdict import Verdict
 
-REFERENCE_TEMPERATURE_C = 40.0
-"""Oil temperature assumed when a parity bundle uses it and a chunk has none, °C (the relations' reference)."""
+UNKNOWN_TEMPERATURE = float("nan")
+"""Oil temperature of a chunk without one when a parity bundle uses it: unknown (the window is judged with the
+leak boxes widened by the oil's range, :mod:`hydrowatch.condition.oil`)."""
 
 
 class EntropyEngine:
@@ -85,7 +86,7 @@ class ParityEngine:
         self.defaults = {}
         if bundle.manifest.get("temperature"):
             self.columns.append(TEMPERATURE)
-            self.defaults[TEMPERATURE] = REFERENCE_TEMPERATURE_C
+            self.defaults[TEMPERATURE] = UNKNOWN_TEMPERATURE
         self.window, self.hop = bundle.window, bundle.hop
         self._shape = (len(bundle.kl_rows), len(bundle.states))
 

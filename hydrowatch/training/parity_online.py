@@ -33,7 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.condition.estimates import TEMPERATURE, WIDTH
 from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
 from hydrowatch.training.chunks import (
@@ -44,9 +46,11 @@ from hydrowatch.training.chunks import (
     WindowVerdict,
     clean_chunks,
     cut_short,
+    optional_columns,
     plan_chunk,
 )
 from hydrowatch.training.engines import ParityEngine
+from hydrowatch.verdict import Verdict
 
 
 @dataclass
@@ -81,8 +85,8 @@ class ParityStreams:
     unit_model : callable, optional
         Machine (``fleet/machine``) → its commissioned :class:`ConditionModel`, or None for the
         fleet model (:class:`hydrowatch.training.commissioning.Commissionings`). A commissioned
-        model shares the fleet model's states, decision and open-set rule, so pooling and judging
-        stay one call; only the features (the unit's parameters) differ.
+        model shares the fleet model's states, but its boxes (which pooling clips to) and its open-set
+        pooling differ: each machine is pooled and judged by its own model.
     """
 
     def __init__(self, engine: ParityEngine, shape: tuple[int, int], *, smoothing: int = 1, batch: int = 64,
@@ -236,7 +240,7 @@ class ParityStreams:
         t = batch.t[a:b]
         expected = self._next_t[slot]
         ops, next_t = plan_chunk(t, self._matrix(batch, np.arange(a, b)), self.columns,
-                                 None if np.isnan(expected) else float(expected))
+                                 None if np.isnan(expected) else float(expected), optional_columns(self.defaults))
         for op in ops:
             if isinstance(op, Break):
                 begun = int(self._phase[slot] + self._count[slot] * self.hop)
@@ -251,46 +255,50 @@ class ParityStreams:
         self._next_t[slot] = np.nan if next_t is None else next_t
 
     # -- judging ------------------------------------------------------------------------------------
-    def _evidence(self, raw: np.ndarray, machines: list[str]) -> np.ndarray:
-        """``transform_evidence`` rows of closed windows, each by its machine's model (commissioned or fleet)."""
+    def _models(self, machines: list[str]) -> list[ConditionModel]:
+        """Each machine's model: its commissioned one, or the fleet model."""
         if self.unit_model is None:
-            return self.model.features_.transform_evidence(raw)
-        models = [self.unit_model(m) or self.model for m in machines]
-        rows: np.ndarray | None = None
-        for model in {id(m): m for m in models}.values():
-            mine = np.array([m is model for m in models])
-            part = model.features_.transform_evidence(raw[mine])
-            rows = np.empty((raw.shape[0], part.shape[1])) if rows is None else rows
-            rows[mine] = part
-        assert rows is not None
-        return rows
+            return [self.model] * len(machines)
+        return [self.unit_model(m) or self.model for m in machines]
 
     def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:
         """Verdicts and ``kl`` scores of closed windows, ``batch`` windows per call, in closing order."""
         out = []
         features = self.model.features_
         width = 2 * len(features.feature_names_)
+        temperature = TEMPERATURE in self.columns
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
             raw = np.stack([c.samples for c in part])
-            rows = self._evidence(raw, [self._names[c.slot] for c in part])
-            reasons = features.window_reasons(raw)
-            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
-            for c, row, why in zip(part, rows, reasons):
-                alone = (row[:width], row[:width], row[:width], 1)
-                if self.smoothing == 1:
-                    evidence.append(alone)
-                    continue
-                pool = self._pools[c.slot]
-                if pool is None:
-                    pool = self._pools[c.slot] = ConditionStream(self.model, n_windows=self.smoothing)
-                pool.update_features(row)
-                got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
-                evidence.append(got if got is not None else alone)
-            verdicts = judge_streams(self.model, self.smoothing, evidence, reasons)
+            models = self._models([self._names[c.slot] for c in part])
+            known = temperature_known(raw, WIDTH) if temperature else np.zeros(len(part), dtype=bool)
+            rows = np.empty((len(part), width + 2 * len(features.states_)))
+            verdicts: list[Verdict | None] = [None] * len(part)
+            for model in {id(m): m for m in models}.values():  # each machine by its own (commissioned) model
+                mine = np.flatnonzero([m is model for m in models])
+                rows[mine] = model.features_.transform_evidence(raw[mine])
+                reasons = model.features_.window_reasons(raw[mine])
+                evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
+                for i, why in zip(mine, reasons):
+                    row, c = rows[i], part[i]
+                    alone = (row[:width], row[:width], row[:width], 1)
+                    if self.smoothing == 1:
+                        evidence.append(alone)
+                        continue
+                    pool = self._pools[c.slot]
+                    if pool is None or pool.model is not model or pool.temperature != bool(known[i]):
+                        # the oil temperature came or went (its boxes differ): the pool starts again
+                        pool = self._pools[c.slot] = ConditionStream(model, n_windows=self.smoothing,
+                                                                     temperature=bool(known[i]))
+                    pool.update_features(row)
+                    got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
+                    evidence.append(got if got is not None else alone)
+                for i, v in zip(mine, judge_streams(model, self.smoothing, evidence, reasons)):
+                    verdicts[i] = v
             band = rows[:, : width // 2]
-            for c, v, s in zip(part, verdicts, band):
+            for c, maybe, s in zip(part, verdicts, band):
+                assert maybe is not None
                 first = c.start
-                out.append(WindowVerdict(self._names[c.slot], c.t0 + first * DT, c.t0 + (first + self.window) * DT, v,
-                                         s.reshape(self.shape)))
+                out.append(WindowVerdict(self._names[c.slot], c.t0 + first * DT, c.t0 + (first + self.window) * DT,
+                                         maybe, s.reshape(self.shape)))
         return out
