@@ -1,0 +1,86 @@
+"""Web service: the live fleet page, fed by ``hydro/<fleet>/*/health`` and ``…/kl``.
+
+Subscribes to the verdicts and the evidence (relative entropies or parity relation scores) of every
+machine of ``--fleet``, keeps them in a :class:`hydrowatch.web.live.FleetLive` and serves the fleet page
+and the machine pages on ``http://--host:--port/`` (:mod:`services.web.server`), which update in place by
+server-sent events. Everything the pages need is served from ``services/web/static`` (no CDN).
+SIGINT/SIGTERM closes the page streams and the bus session. docs/web.md describes the pages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+import time
+from collections.abc import Sequence
+
+from hydrowatch.bus import StatusReporter, Subscriber, add_bus_arguments, key_expr, open_session
+from hydrowatch.bus.service import service_main
+from hydrowatch.bus.session import settings_from_args
+from hydrowatch.log import event, get_logger
+from hydrowatch.report.fleet_table import verdict_rows
+from hydrowatch.web.live import FleetLive
+
+NAME = "web"
+HELP = "live fleet web page (health and evidence topics) on a local port, updated in place"
+DEFAULT_PORT = 8050
+log = get_logger("services.web")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT,
+                        help=f"HTTP port (default {DEFAULT_PORT}; 0: any free one)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to serve on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)")
+    parser.add_argument("--fleet", default="*", help="fleet to show (default: every fleet)")
+    parser.add_argument("--history", type=int, default=360, help="verdicts kept per machine for its timeline")
+    parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
+    add_bus_arguments(parser)
+
+
+def _take(live: FleetLive, messages: Sequence) -> None:
+    for message in messages:
+        k = message.key
+        if k.topic == "health":
+            for row in verdict_rows(message.batch):
+                live.add_verdict(k.fleet, k.machine, row, received=message.receive_time_ns / 1e9,
+                                 published_ms=message.publish_time_ns / 1e6 or None)
+        else:
+            live.add_evidence(k.fleet, k.machine, message.batch.to_pylist())
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    """Serve until ``stop`` (or ``--seconds``); returns 0."""
+    from services.web.server import WebServer
+
+    live = FleetLive(history=args.history)
+    condition = threading.Condition()
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    topics = [key_expr(args.fleet, "*", "health"), key_expr(args.fleet, "*", "kl")]
+    with open_session(settings_from_args(args)) as session, Subscriber(session, topics) as subscriber, \
+            WebServer(live, condition, args.host, args.port) as server:
+        reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {
+            "messages_in": subscriber.received, "messages_undecodable": subscriber.undecodable_total,
+            "pages_open": server.streams})
+        try:
+            reporter.start()
+            reporter.status = "running"
+            event(log, "web page ready", url=server.url, fleet=args.fleet)
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                messages = subscriber.recv_many(limit=5000, timeout=0.1)
+                if messages:
+                    with condition:
+                        _take(live, messages)
+                        condition.notify_all()
+        finally:
+            reporter.stop()
+    if subscriber.undecodable_total:
+        event(log, "undecodable messages skipped", logging.WARNING, count=subscriber.undecodable_total)
+    event(log, "web stopped", machines=len(live), messages=subscriber.received)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.web``."""
+    return service_main(NAME, HELP, add_arguments, run, argv)
