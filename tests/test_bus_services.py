@@ -151,7 +151,7 @@ def test_two_recorder_shards_record_every_machine_exactly_once(tmp_path: Path) -
 
 def test_up_starts_and_stops_the_services_together(tmp_path: Path) -> None:
     # in this process (as `hydrowatch up`): it hosts the router, the services are child processes
-    code = main(["up", "--machines", "2", "--speed", "20", "--seconds", "8", "--bus-port", "0",
+    code = main(["up", "--machines", "2", "--speed", "20", "--seconds", "12", "--bus-port", "0",
                  "--out", str(tmp_path), "--fleet", FLEET])
     assert code == 0
     machines = read_machines(tmp_path / FLEET)

@@ -20,11 +20,11 @@ from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.log import event, get_logger
 from hydrowatch.report.fleet_table import verdict_rows
+from hydrowatch.web import DEFAULT_PORT
 from hydrowatch.web.live import FleetLive
 
 NAME = "web"
 HELP = "live fleet web page (health and evidence topics) on a local port, updated in place"
-DEFAULT_PORT = 8050
 log = get_logger("services.web")
 
 

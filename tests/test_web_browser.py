@@ -1,0 +1,120 @@
+"""The live fleet page in a real browser: plant, scorer and web on loopback, headless Chromium over DevTools.
+
+Every machine appears with the state the plant gives it, a fault that appears in the fleet (the plant
+restarted with one machine faulty) shows up without a reload, and a machine page opens from the fleet page.
+Skipped where no Chromium is installed (``make test`` installs Debian's ``chromium`` where apt is available).
+Set ``HYDROWATCH_SCREENSHOTS=docs`` to write the screenshots of docs/web.md.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hydrowatch.web.browser import Chromium, find_chromium
+
+pytestmark = pytest.mark.skipif(find_chromium() is None,
+                                reason="no Chromium installed (apt-get install chromium; `make test` does it where "
+                                       "apt is available)")
+FLEET = "wf"
+STATES = ["healthy", "load_alert", "pump_leak_alert"]
+
+
+@pytest.fixture(scope="module")
+def bundle_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A parity bundle of three states, trained on a small plan (as tests/test_pipeline_online.py)."""
+    from hydrowatch.health.plan import DataPlan
+    from hydrowatch.plant.fleet import simulate_states
+    from hydrowatch.training.options import TrainingSettings
+    from hydrowatch.training.trainer import train
+
+    plan = DataPlan(reference_samples=2000, base_samples=2000, classifier_windows=12, window=1000, hop=1000)
+    grouped = {r.state: [r] for r in simulate_states(STATES, seconds=plan.samples_per_state / 200 + 1, seed=0)}
+    return train(grouped, TrainingSettings(method="parity", plan=plan)).bundle.save(
+        tmp_path_factory.mktemp("web") / "model")
+
+
+def start(module: str, *argv: object) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", module, *map(str, argv)])
+
+
+def stop(proc: subprocess.Popen) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def plant(port: int, states: list[str], seed: int) -> subprocess.Popen:
+    return start("services.plant", "--fleet", FLEET, "--machines", len(states), "--states", ",".join(states),
+                 "--speed", 20, "--seed", seed, "--wait-subscribers", 30, "--linger", 0.2, "--bus-port", port)
+
+
+@pytest.fixture
+def services(bundle_dir: Path) -> Iterator[tuple[int, str, list[subprocess.Popen]]]:
+    """Web and scorer on a private loopback bus; the test adds plants to the list it gets."""
+    from hydrowatch.bus import free_port
+
+    port, http = free_port(), free_port()
+    running = [start("services.web", "--fleet", FLEET, "--port", http, "--bus-port", port),
+               start("services.scorer", "--model", bundle_dir, "--fleet", FLEET, "--smoothing", 3, "--bus-port", port)]
+    try:
+        yield port, f"http://127.0.0.1:{http}/", running
+    finally:
+        codes = [stop(p) for p in reversed(running)]
+        assert codes == [0] * len(codes)
+
+
+def page_states(browser: Chromium) -> dict[str, str]:
+    return browser.evaluate(
+        "Object.fromEntries([...document.querySelectorAll('#rows tr')].map(tr => "
+        "[tr.cells[0].textContent, tr.querySelector('.badge').textContent]))") or {}
+
+
+def wait_states(browser: Chromium, want: dict[str, str], timeout: float) -> dict[str, str]:
+    deadline = time.monotonic() + timeout
+    while (seen := page_states(browser)) != want and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return seen
+
+
+def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
+        services: tuple[int, str, list[subprocess.Popen]], tmp_path: Path) -> None:
+    port, url, running = services
+    shots = Path(os.environ.get("HYDROWATCH_SCREENSHOTS") or tmp_path)
+    with Chromium(width=1100, height=420) as browser:
+        running.append(plant(port, ["healthy", "load_alert", "healthy"], seed=1))
+        browser.navigate(url)
+        before = {"m000": "healthy", "m001": "load_alert", "m002": "healthy"}
+        assert wait_states(browser, before, timeout=60) == before
+        # the order is the server's: most urgent first
+        assert browser.evaluate("document.querySelector('#rows tr').cells[0].textContent") == "m001"
+        browser.evaluate("window.noReload = true")
+        browser.screenshot(shots / "web-fleet.png")
+
+        # the plant restarts with m002 faulty: its verdicts turn to the fault, the page follows in place
+        assert stop(running.pop()) == 0
+        running.append(plant(port, ["healthy", "load_alert", "pump_leak_alert"], seed=2))
+        after = {**before, "m002": "pump_leak_alert"}
+        assert wait_states(browser, after, timeout=60) == after
+        assert browser.evaluate("window.noReload === true && window.hw.snapshots === 1")
+        assert browser.evaluate("[...document.querySelectorAll('#rows tr')].slice(0, 2).map(tr => "
+                                "tr.cells[0].textContent).sort().join()") == "m001,m002"
+
+        # a machine page opens from its link
+        browser.evaluate("document.querySelector('#rows a[href*=\"m001\"]').click()")
+        browser.wait_for("location.pathname === '/machine' && window.hw && window.hw.updates > 0", timeout=20)
+        assert browser.evaluate("document.querySelector('#verdict .badge').textContent") == "load_alert"
+        assert browser.evaluate("document.querySelectorAll('#states rect').length") > 0
+        assert browser.wait_for("document.querySelectorAll('#evidence table.heat td').length", timeout=10) > 0
+        browser.screenshot(shots / "web-machine.png", full_page=True)
