@@ -77,7 +77,7 @@ def services(bundle_dir: Path) -> Iterator[tuple[int, str, list[subprocess.Popen
 
 def page_states(browser: Chromium) -> dict[str, str]:
     return browser.evaluate(
-        "Object.fromEntries([...document.querySelectorAll('#rows tr')].map(tr => "
+        "Object.fromEntries([...document.querySelectorAll('#rows tr[data-id]')].map(tr => "
         "[tr.cells[0].textContent, tr.querySelector('.badge').textContent]))") or {}
 
 
@@ -98,7 +98,7 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         before = {"m000": "healthy", "m001": "load_alert", "m002": "healthy"}
         assert wait_states(browser, before, timeout=60) == before
         # the order is the server's: most urgent first
-        assert browser.evaluate("document.querySelector('#rows tr').cells[0].textContent") == "m001"
+        assert browser.evaluate("document.querySelector('#rows tr[data-id]').cells[0].textContent") == "m001"
         browser.evaluate("window.noReload = true")
         browser.screenshot(shots / "web-fleet.png")
 
@@ -108,7 +108,7 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         after = {**before, "m002": "pump_leak_alert"}
         assert wait_states(browser, after, timeout=60) == after
         assert browser.evaluate("window.noReload === true && window.hw.snapshots === 1")
-        assert browser.evaluate("[...document.querySelectorAll('#rows tr')].slice(0, 2).map(tr => "
+        assert browser.evaluate("[...document.querySelectorAll('#rows tr[data-id]')].slice(0, 2).map(tr => "
                                 "tr.cells[0].textContent).sort().join()") == "m001,m002"
 
         # a machine page opens from its link

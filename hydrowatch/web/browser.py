@@ -249,6 +249,12 @@ class Chromium:
                 raise TimeoutError(f"{expression!r} still false after {timeout} s")
             time.sleep(poll)
 
+    def exceptions(self) -> list[str]:
+        """The uncaught JavaScript exceptions of the page seen so far (since the last :meth:`navigate`)."""
+        self.evaluate("0")  # takes in the events that came meanwhile
+        return [e["params"]["exceptionDetails"].get("exception", {}).get("description", "?")
+                for e in self.events if e.get("method") == "Runtime.exceptionThrown"]
+
     def screenshot(self, path: Path, full_page: bool = False) -> Path:
         """Save what the window shows (``full_page``: the whole page) as a PNG."""
         params: dict[str, Any] = {"format": "png"}
