@@ -32,7 +32,9 @@ import numpy as np
 import pyarrow as pa
 
 from hydrowatch.bus import BusSettings, Publisher, free_port, key, open_session
-from hydrowatch.schemas import HEALTH_VERDICT, KL_WINDOW, wire_schema
+from hydrowatch.training.chunks import WindowVerdict
+from hydrowatch.training.messages import kl_batch, verdict_batch
+from hydrowatch.verdict import Verdict
 from hydrowatch.web.browser import Chromium, find_chromium
 
 TARGET_FIRST_PAINT_MS = 1000.0
@@ -41,22 +43,24 @@ FLEET = "bench"
 STATES = ("healthy", "load_warning", "load_alert", "pump_leak_warning", "pump_leak_alert", "unknown")
 
 
-def verdict(t: float, state: str, window: float) -> pa.RecordBatch:
-    known = [s for s in STATES if s != "unknown"]
+KNOWN = [s for s in STATES if s != "unknown"]
+RELATIONS = ("load", "motor", "valve")
+
+
+def verdict(machine: str, t: float, state: str, window: float) -> pa.RecordBatch:
+    """A ``health_verdict`` message as the scorer builds it (p = 0.9 for a trained state, 0 for unknown)."""
     p = 0.0 if state == "unknown" else 0.9
-    probabilities = [{"state": s, "probability": p if s == state else (1 - p) / len(known)} for s in known]
-    return pa.RecordBatch.from_pydict({
-        "window_start": [t], "window_end": [t + window], "state": [state], "probability": [p],
-        "probabilities": [probabilities], "reason": ["no trained state explains the window" if p == 0 else None],
-        "model_version": ["bench/v1"]}, schema=wire_schema(HEALTH_VERDICT))
+    probabilities = {s: p if s == state else (1 - p) / len(KNOWN) for s in KNOWN}
+    return verdict_batch(WindowVerdict(machine, t, t + window, Verdict(state, p or None, probabilities)), "bench/v1")
 
 
-def evidence(t: float, window: float, rng: np.random.Generator) -> pa.RecordBatch:
-    pairs = [(r, s) for r in ("load", "motor", "valve") for s in STATES if s != "unknown"]
-    return pa.RecordBatch.from_pydict({
-        "window_start": [t] * len(pairs), "window_end": [t + window] * len(pairs), "sensor": [r for r, _ in pairs],
-        "state": [s for _, s in pairs], "relative_entropy": rng.uniform(1.0, 20.0, len(pairs)).tolist(),
-        "model_version": ["bench/v1"] * len(pairs)}, schema=wire_schema(KL_WINDOW))
+def evidence(machine: str, t: float, window: float, rng: np.random.Generator) -> pa.RecordBatch:
+    """A ``kl_window`` message as the scorer builds it (random relation scores)."""
+    scores = rng.uniform(1.0, 20.0, (len(RELATIONS), len(KNOWN)))
+    item = WindowVerdict(machine, t, t + window, Verdict("healthy", 0.9), scores)
+    batch = kl_batch(item, RELATIONS, KNOWN, "bench/v1")
+    assert batch is not None
+    return batch
 
 
 def stats(values: list[float]) -> str:
@@ -93,12 +97,14 @@ def main() -> int:
                 return 1
             # history: 360 windows of the first machine (its page's timeline), then one verdict of every machine
             for k in range(360):
-                publisher.put(keys[0], verdict(args.window * k, STATES[(k // 60) % len(STATES)], args.window))
+                publisher.put(keys[0], verdict(machines[0], args.window * k, STATES[(k // 60) % len(STATES)],
+                                               args.window))
                 if k >= 348:
-                    publisher.put(key(FLEET, machines[0], "kl"), evidence(args.window * k, args.window, rng))
+                    publisher.put(key(FLEET, machines[0], "kl"), evidence(machines[0], args.window * k, args.window,
+                                                                          rng))
             t = 360 * args.window
             for m, k in zip(machines, keys):
-                publisher.put(k, verdict(t, state[m], args.window))
+                publisher.put(k, verdict(m, t, state[m], args.window))
             browser.navigate(url)
             browser.wait_for(f"window.hw.shown === {args.machines}", timeout=60)
 
@@ -128,7 +134,7 @@ def main() -> int:
                     m = machines[i % args.machines]
                     if rng.random() < 0.1:  # a tenth change state: their rows move
                         state[m] = "healthy" if state[m] != "healthy" else str(rng.choice(STATES[1:]))
-                    publisher.put(keys[i % args.machines], verdict(t + args.window * (1 + i // args.machines),
+                    publisher.put(keys[i % args.machines], verdict(m, t + args.window * (1 + i // args.machines),
                                                                    state[m], args.window))
                     i += 1
                     sent += 1

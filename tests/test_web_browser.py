@@ -118,3 +118,41 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         assert browser.evaluate("document.querySelectorAll('#states rect').length") > 0
         assert browser.wait_for("document.querySelectorAll('#evidence table.heat td').length", timeout=10) > 0
         browser.screenshot(shots / "web-machine.png", full_page=True)
+        assert browser.exceptions() == []
+
+
+def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_path: Path) -> None:
+    """1000 machines: the page draws the rows in view only, scrolling brings the last one, a state filter
+    shows exactly that state's machines (and goes into the address), and the page raises no JavaScript error."""
+    from hydrowatch.bus import BusSettings, Publisher, free_port, key, open_session
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.messages import verdict_batch
+    from hydrowatch.verdict import Verdict
+
+    port, http = free_port(), free_port()
+    machines = [f"m{i:04d}" for i in range(1000)]
+    truth = {m: "load_alert" if i % 50 == 7 else "healthy" for i, m in enumerate(machines)}
+    web = start("services.web", "--fleet", "big", "--port", http, "--bus-port", port)
+    try:
+        with open_session(BusSettings(port=port)) as session, Publisher(session) as publisher, \
+                Chromium(width=1000, height=600) as browser:
+            assert publisher.wait_for_subscribers([key("big", machines[0], "health")], timeout=60)
+            for m in machines:
+                publisher.put(key("big", m, "health"),
+                              verdict_batch(WindowVerdict(m, 0.0, 5.0, Verdict(truth[m], 0.9)), "t/v1"))
+            browser.navigate(f"http://127.0.0.1:{http}/")
+            browser.wait_for("window.hw.shown === 1000", timeout=30)
+            drawn = browser.evaluate("document.querySelectorAll('#rows tr[data-id]').length")
+            assert 20 < drawn < 200
+            assert browser.evaluate("document.querySelector('#rows tr[data-id]').dataset.id") == "big/m0007"
+            browser.evaluate("window.scrollTo(0, document.body.scrollHeight)")
+            browser.wait_for("document.querySelector('#rows tr[data-id=\"big/m0999\"]') !== null", timeout=10)
+            browser.evaluate("const s = document.getElementById('state'); s.value = 'load_alert';"
+                             "s.dispatchEvent(new Event('change'))")
+            browser.wait_for("window.hw.shown === 20 && window.hw.snapshots === 2", timeout=10)
+            assert browser.evaluate("location.search") == "?state=load_alert"
+            badges = browser.evaluate("[...document.querySelectorAll('#rows .badge')].map(b => b.textContent)")
+            assert badges == ["load_alert"] * 20
+            assert browser.exceptions() == []
+    finally:
+        assert stop(web) == 0

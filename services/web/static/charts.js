@@ -37,7 +37,8 @@ function stateBand(container, t, width = 960, height = 46) {
   const el = svg(width, height);
   const n = t.start_s.length;
   if (!n) { container.replaceChildren(el); return; }
-  const x0 = t.start_s[0], x1 = t.end_s[n - 1];
+  // (min and max: a machine whose stream restarted, e.g. a restarted plant, starts its time again)
+  const x0 = Math.min(...t.start_s), x1 = Math.max(...t.end_s);
   const x = scale(x0, x1, PAD.left, width - PAD.right);
   for (let i = 0; i < n; i++) {
     const r = add(el, "rect", {x: x(t.start_s[i]), y: PAD.top, width: Math.max(1, x(t.end_s[i]) - x(t.start_s[i])),
@@ -51,8 +52,10 @@ function stateBand(container, t, width = 960, height = 46) {
 // Lines over time, one per series (null values break a line); y from y0 to y1.
 function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height = 160, log = false} = {}) {
   const el = svg(width, height);
+  if (!(y1 > y0)) { y0 = log ? y0 / 2 : y0 - 1; y1 = log ? y1 * 2 : y1 + 1; }  // one value: a band around it
   const tr = log ? (v) => Math.log10(Math.max(v, 1e-12)) : (v) => v;
-  const x = scale(xs[0] ?? 0, xs[xs.length - 1] ?? 1, PAD.left, width - PAD.right);
+  const lo = xs.length ? Math.min(...xs) : 0, hi = xs.length ? Math.max(...xs) : 1;
+  const x = scale(lo, hi, PAD.left, width - PAD.right);
   const y = scale(tr(y0), tr(y1), height - PAD.bottom, PAD.top);
   add(el, "line", {x1: PAD.left, x2: width - PAD.right, y1: y(tr(y0)), y2: y(tr(y0)), stroke: "#ccc"});
   add(el, "text", {x: PAD.left - 4, y: y(tr(y1)) + 9, "text-anchor": "end"}, String(+y1.toPrecision(3)));
@@ -66,7 +69,7 @@ function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height =
     });
     add(el, "path", {d: d.replace(/ +/g, " "), fill: "none", stroke: PALETTE[k % PALETTE.length], "stroke-width": 1.6});
   });
-  if (xs.length) timeAxis(el, xs[0], xs[xs.length - 1], width, height);
+  if (xs.length) timeAxis(el, lo, hi, width, height);
   container.replaceChildren(el);
   return names.map((name, k) => [name, PALETTE[k % PALETTE.length]]);
 }

@@ -55,8 +55,10 @@ function draw() {
   if (tableTop === null) tableTop = table.getBoundingClientRect().top + window.scrollY + table.tHead.offsetHeight;
   const top = tableTop;
   const h = rowHeight || 27;
-  const first = Math.max(0, Math.floor((window.scrollY - top) / h) - MARGIN);
-  const last = Math.min(order.length, first + Math.ceil(window.innerHeight / h) + 2 * MARGIN);
+  const count = Math.ceil(window.innerHeight / h) + 2 * MARGIN;
+  // (clamped: the view may lie past the end of a list that just got shorter)
+  const first = Math.max(0, Math.min(Math.floor((window.scrollY - top) / h) - MARGIN, order.length - count));
+  const last = Math.min(order.length, first + count);
   const columns = anyDegradation ? 9 : 8;
   const spacer = (n) => `<tr class="spacer"><td colspan="${columns}" style="height:${n * h}px"></td></tr>`;
   let out = first ? spacer(first) : "";
@@ -149,6 +151,7 @@ function flush() {
 
 function connect(first) {
   if (source) source.close();
+  if (first !== true) window.scrollTo(0, 0);  // another filter: its most urgent machines first
   const params = new URLSearchParams();
   for (const id of ["state", "fleet"]) {
     const v = first === true ? new URLSearchParams(location.search).get(id) : document.getElementById(id).value;
