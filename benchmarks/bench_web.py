@@ -118,7 +118,7 @@ def main() -> int:
                 page_ms.append(browser.wait_for("window.hw.firstRowsMs", timeout=10))
             if args.screenshots:
                 args.screenshots.mkdir(parents=True, exist_ok=True)
-                browser.screenshot(args.screenshots / "web-fleet-1000.png")
+                browser.screenshot(args.screenshots / "web-fleet-1000.png", palette=True)
             machine_ms = []
             for _ in range(args.loads):
                 browser.navigate(f"{url}machine?id={FLEET}/{machines[0]}")

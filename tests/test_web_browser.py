@@ -1,7 +1,8 @@
 """The live fleet page in a real browser: plant, scorer and web on loopback, headless Chromium over DevTools.
 
 Every machine appears with the state the plant gives it, a fault that appears in the fleet (the plant
-restarted with one machine faulty) shows up without a reload, and a machine page opens from the fleet page.
+restarted with one machine faulty) shows up without a reload, and a machine page opens from the fleet page
+with its verdict, timeline, evidence and measured sensors.
 Skipped where no Chromium is installed (``make test`` installs Debian's ``chromium`` where apt is available).
 Set ``HYDROWATCH_SCREENSHOTS=docs`` to write the screenshots of docs/web.md.
 """
@@ -100,7 +101,7 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         # the order is the server's: most urgent first
         assert browser.evaluate("document.querySelector('#rows tr[data-id]').cells[0].textContent") == "m001"
         browser.evaluate("window.noReload = true")
-        browser.screenshot(shots / "web-fleet.png")
+        browser.screenshot(shots / "web-fleet.png", palette=True)
 
         # the plant restarts with m002 faulty: its verdicts turn to the fault, the page follows in place
         assert stop(running.pop()) == 0
@@ -117,7 +118,9 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         assert browser.evaluate("document.querySelector('#verdict .badge').textContent") == "load_alert"
         assert browser.evaluate("document.querySelectorAll('#states rect').length") > 0
         assert browser.wait_for("document.querySelectorAll('#evidence table.heat td').length", timeout=10) > 0
-        browser.screenshot(shots / "web-machine.png", full_page=True)
+        # its sensors are followed while the page is open: measured samples arrive on the page
+        assert browser.wait_for("document.querySelectorAll('#sensors svg path').length", timeout=20) >= 4
+        browser.screenshot(shots / "web-machine.png", full_page=True, palette=True)
         assert browser.exceptions() == []
 
 

@@ -173,3 +173,25 @@ def test_the_server_serves_pages_json_and_event_streams(live: FleetLive) -> None
             assert [r["id"] for r in update["rows"]] == ["f1/m0"] and update["order"] == ["f1/m0", "f2/m2"]
         with urllib.request.urlopen(base + "events/machine?id=f2/m2", timeout=10) as stream:
             assert json.loads(stream.readline().decode().removeprefix("data: "))["row"]["id"] == "f2/m2"
+
+
+def test_a_machine_keeps_its_last_seconds_of_sensor_samples_thinned_for_its_page() -> None:
+    import numpy as np
+
+    live = FleetLive(sensor_seconds=2.0, sensor_points=50)
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy"))
+    assert live.machine("f1/m0")["sensors"] is None and live.sensor_chunks("f1/m0") == 0
+    for k in range(40):  # 4 s of 0.1 s chunks at 200 Hz
+        t = (np.arange(20) + 20 * k) / 200.0
+        flow = np.where(t > 3.9, np.nan, t)
+        live.add_sensors("f1", "m0", t, {"flow": flow, "speed": 2 * t, "state": np.array(["healthy"] * 20, object)})
+    sensors = live.machine("f1/m0")["sensors"]
+    assert live.sensor_chunks("f1/m0") == 40 and sensors["units"] == {"flow": "L/min", "speed": "rad/s"}
+    t = np.array(sensors["t"])
+    assert t[-1] == 799 / 200 and t[0] >= 4.0 - 2.1 and len(t) <= 50  # the last ~2 s, thinned, newest kept
+    assert sensors["channels"]["speed"] == pytest.approx(2 * t)
+    assert sensors["channels"]["flow"][-1] is None  # NaN is sent as null
+    live.add_sensors("f1", "m0", np.arange(20) / 200.0, {"flow": np.zeros(20), "speed": np.zeros(20)})
+    assert live.machine("f1/m0")["sensors"]["t"][0] == 0.0  # a restarted stream starts again
+    with pytest.raises(ParameterError, match="sensor_seconds must be > 0"):
+        FleetLive(sensor_seconds=0.0)

@@ -255,8 +255,9 @@ class Chromium:
         return [e["params"]["exceptionDetails"].get("exception", {}).get("description", "?")
                 for e in self.events if e.get("method") == "Runtime.exceptionThrown"]
 
-    def screenshot(self, path: Path, full_page: bool = False) -> Path:
-        """Save what the window shows (``full_page``: the whole page) as a PNG."""
+    def screenshot(self, path: Path, full_page: bool = False, palette: bool = False) -> Path:
+        """Save what the window shows (``full_page``: the whole page) as a PNG (``palette``: 256 colours, about a
+        third of the size, for screenshots kept in the repository; needs Pillow, which matplotlib brings)."""
         params: dict[str, Any] = {"format": "png"}
         if full_page:
             size = self.page("Page.getLayoutMetrics")["cssContentSize"]
@@ -265,4 +266,10 @@ class Chromium:
         data = self.page("Page.captureScreenshot", **params)["data"]
         path = Path(path)
         path.write_bytes(base64.b64decode(data))
+        if palette:
+            from PIL import Image
+
+            with Image.open(path) as image:
+                small = image.convert("RGB").quantize(256)
+            small.save(path, optimize=True)
         return path

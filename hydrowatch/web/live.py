@@ -17,9 +17,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 from hydrowatch.report.fleet_table import HEALTHY, LEVELS, FleetTable, MachineRow, urgency
 
+UNITS = PLANT.units
+"""Unit of each channel the plant (and the study's rig) publishes."""
 ATTENTION = "attention"
 """The state filter that keeps every machine that is not healthy."""
 
@@ -30,9 +35,11 @@ class _Machine:
     machine: str
     timeline: deque[tuple[float, float, str, float, dict[str, float]]]
     evidence: deque[dict[str, Any]]
+    sensors: deque[tuple[np.ndarray, dict[str, np.ndarray]]]
     published_ms: float | None = None
     model_version: str | None = None
     degradation: dict[str, Any] | None = None
+    sensor_chunks: int = 0
 
 
 class FleetLive:
@@ -44,6 +51,11 @@ class FleetLive:
         Verdicts kept per machine for its timeline (default 360: 30 min of 5 s windows).
     evidence : int
         Windows of evidence (``kl_window`` messages) kept per machine (default 12: the scorer's pool).
+    sensor_seconds : float
+        Seconds of sensor samples kept per machine that :meth:`add_sensors` is given (default 10 s: two
+        of the scorer's 5 s windows).
+    sensor_points : int
+        Most samples per channel a machine page is sent (evenly thinned; default 500).
 
     Attributes
     ----------
@@ -51,22 +63,29 @@ class FleetLive:
         Counts the messages taken in; :meth:`changes` answers "what changed after ``seq``".
     """
 
-    def __init__(self, *, history: int = 360, evidence: int = 12) -> None:
+    def __init__(self, *, history: int = 360, evidence: int = 12, sensor_seconds: float = 10.0,
+                 sensor_points: int = 500) -> None:
         if history < 1 or evidence < 1:
             raise ParameterError(f"history and evidence must be >= 1. Got {history} and {evidence}.")
+        if not sensor_seconds > 0 or sensor_points < 2:
+            raise ParameterError(f"sensor_seconds must be > 0 and sensor_points >= 2. Got {sensor_seconds} and "
+                                 f"{sensor_points}.")
         self.history = history
         self.evidence = evidence
+        self.sensor_seconds = sensor_seconds
+        self.sensor_points = sensor_points
         self.seq = 0
         self._table = FleetTable()
         self._machines: dict[str, _Machine] = {}
         self._changed: dict[str, int] = {}
+        self._rows: tuple[int, list[dict[str, Any]]] | None = None  # (seq, rows) of the last :meth:`rows`
 
     def _machine(self, fleet: str, machine: str) -> tuple[str, _Machine]:
         ident = f"{fleet}/{machine}"
         found = self._machines.get(ident)
         if found is None:
             found = self._machines[ident] = _Machine(fleet, machine, deque(maxlen=self.history),
-                                                     deque(maxlen=self.evidence))
+                                                     deque(maxlen=self.evidence), deque())
         return ident, found
 
     def add_verdict(self, fleet: str, machine: str, verdict: Mapping[str, Any], *, received: float | None = None,
@@ -104,6 +123,37 @@ class FleetLive:
             self.seq += 1
             self._changed[ident] = self.seq
 
+    def add_sensors(self, fleet: str, machine: str, t: np.ndarray, channels: Mapping[str, np.ndarray]) -> None:
+        """Take one ``sensor_chunk`` (sample times ``t`` s, shape (n,), and channel arrays of the same shape; a
+        non-numeric column such as ``state`` is left out). Keeps the machine's last ``sensor_seconds``; a chunk
+        earlier than the last one kept (a restarted stream) starts them again."""
+        if len(t) == 0:
+            return
+        _, m = self._machine(fleet, machine)
+        if m.sensors and t[0] <= m.sensors[-1][0][-1]:
+            m.sensors.clear()
+        m.sensors.append((np.asarray(t, dtype=np.float64),
+                          {k: np.asarray(v) for k, v in channels.items() if np.asarray(v).dtype.kind == "f"}))
+        while m.sensors and m.sensors[0][0][-1] < t[-1] - self.sensor_seconds:
+            m.sensors.popleft()
+        m.sensor_chunks += 1
+
+    def sensor_chunks(self, ident: str) -> int:
+        """Sensor chunks taken for machine ``ident`` so far (a page compares it to know whether they changed)."""
+        found = self._machines.get(ident)
+        return 0 if found is None else found.sensor_chunks
+
+    def _sensors(self, m: _Machine) -> dict[str, Any] | None:
+        if not m.sensors:
+            return None
+        t = np.concatenate([c[0] for c in m.sensors])
+        names = sorted(set.intersection(*(set(c[1]) for c in m.sensors)))
+        step = max(1, -(-t.size // self.sensor_points))
+        start = t.size - 1 - ((t.size - 1) // step) * step  # keep the newest sample
+        columns = {k: np.concatenate([c[1][k] for c in m.sensors])[start::step] for k in names}
+        return {"t": t[start::step].tolist(), "units": {k: UNITS.get(k, "") for k in names},
+                "channels": {k: [None if not np.isfinite(v) else v for v in c.tolist()] for k, c in columns.items()}}
+
     def __len__(self) -> int:
         """Machines with at least one verdict."""
         return len(self._table.latest())
@@ -122,8 +172,11 @@ class FleetLive:
                 "degradation": m.degradation}
 
     def rows(self) -> list[dict[str, Any]]:
-        """Every machine's row, most urgent first (:meth:`FleetTable.by_urgency`)."""
-        return [self._row(ident, r) for ident, r in self._table.by_urgency().items()]
+        """Every machine's row, most urgent first (:meth:`FleetTable.by_urgency`); the same list until the next
+        message (every open page asks for it after each burst: made once per burst)."""
+        if self._rows is None or self._rows[0] != self.seq:
+            self._rows = (self.seq, [self._row(ident, r) for ident, r in self._table.by_urgency().items()])
+        return self._rows[1]
 
     def changed(self, since: int) -> set[str]:
         """Ids of the machines whose verdict or evidence came after ``seq`` was ``since``."""
@@ -131,7 +184,9 @@ class FleetLive:
 
     def machine(self, ident: str) -> dict[str, Any] | None:
         """What the machine page shows: its row, its timeline (window bounds s, state, probability, every
-        state's probability per window) and the evidence of its last windows; None for an unknown machine."""
+        state's probability per window), the evidence of its last windows and, when :meth:`add_sensors` was given
+        any, its last ``sensor_seconds`` of samples (``{"t": [...], "units": {name: unit}, "channels": {name:
+        [...]}}``, at most ``sensor_points`` per channel, NaN as None; else None); None for an unknown machine."""
         row = self.row(ident)
         if row is None:
             return None
@@ -143,7 +198,8 @@ class FleetLive:
             "level": [LEVELS[urgency(w[2])] for w in m.timeline],
             "probabilities": {s: [w[4].get(s) for w in m.timeline] for s in states},
         }
-        return {"row": row, "model_version": m.model_version, "timeline": timeline, "evidence": list(m.evidence)}
+        return {"row": row, "model_version": m.model_version, "timeline": timeline, "evidence": list(m.evidence),
+                "sensors": self._sensors(m)}
 
 
 def select(rows: Iterable[dict[str, Any]], state: str | None = None, fleet: str | None = None) -> list[dict[str, Any]]:

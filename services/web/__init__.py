@@ -3,8 +3,10 @@
 Subscribes to the verdicts and the evidence (relative entropies or parity relation scores) of every
 machine of ``--fleet``, keeps them in a :class:`hydrowatch.web.live.FleetLive` and serves the fleet page
 and the machine pages on ``http://--host:--port/`` (:mod:`services.web.server`), which update in place by
-server-sent events. Everything the pages need is served from ``services/web/static`` (no CDN).
-SIGINT/SIGTERM closes the page streams and the bus session. docs/web.md describes the pages.
+server-sent events. While a machine's page is open, the service also subscribes to that machine's
+``…/sensors`` and keeps its last seconds of samples for the page. Everything the pages need is served
+from ``services/web/static`` (no CDN). SIGINT/SIGTERM closes the page streams and the bus session.
+docs/web.md describes the pages.
 """
 
 from __future__ import annotations
@@ -15,9 +17,13 @@ import threading
 import time
 from collections.abc import Sequence
 
-from hydrowatch.bus import StatusReporter, Subscriber, add_bus_arguments, key_expr, open_session
+import zenoh
+
+from hydrowatch.bus import StatusReporter, Subscriber, add_bus_arguments, key, key_expr, open_session
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
+from hydrowatch.errors import ParameterError
+from hydrowatch.io.sensor_chunk import arrays_from_sensor_chunk
 from hydrowatch.log import event, get_logger
 from hydrowatch.report.fleet_table import verdict_rows
 from hydrowatch.web import DEFAULT_PORT
@@ -42,12 +48,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _take(live: FleetLive, messages: Sequence) -> None:
     for message in messages:
         k = message.key
-        if k.topic == "health":
+        if k.topic == "sensors":
+            t, channels = arrays_from_sensor_chunk(message.batch)
+            live.add_sensors(k.fleet, k.machine, t, channels)
+        elif k.topic == "health":
             for row in verdict_rows(message.batch):
                 live.add_verdict(k.fleet, k.machine, row, received=message.receive_time_ns / 1e9,
                                  published_ms=message.publish_time_ns / 1e6 or None)
         else:
             live.add_evidence(k.fleet, k.machine, message.batch.to_pylist())
+
+
+class _SensorFeeds:
+    """A ``…/sensors`` subscriber for each machine whose page is open (declared and undeclared as pages come
+    and go); use as a context manager."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self._subscribers: dict[str, Subscriber] = {}
+
+    def follow(self, watched: set[str]) -> None:
+        """Subscribe to the machines in ``watched`` and to no others."""
+        for ident in set(self._subscribers) - watched:
+            self._subscribers.pop(ident).close()
+        for ident in watched - set(self._subscribers):
+            fleet, machine = ident.split("/", 1)
+            try:
+                self._subscribers[ident] = Subscriber(self.session, key(fleet, machine, "sensors"))
+            except ParameterError:
+                continue  # a page asked for an id that is no machine's: it shows no sensors
+            event(log, "sensors followed while the machine's page is open", machine=ident)
+
+    def take(self) -> list:
+        """What came on the followed machines' sensor topics since the last call (no waiting)."""
+        return [m for s in self._subscribers.values() for m in s.recv_many(timeout=0.0)]
+
+    def __enter__(self) -> _SensorFeeds:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.follow(set())
 
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
@@ -59,7 +99,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     topics = [key_expr(args.fleet, "*", "health"), key_expr(args.fleet, "*", "kl")]
     with open_session(settings_from_args(args)) as session, Subscriber(session, topics) as subscriber, \
-            WebServer(live, condition, args.host, args.port) as server:
+            _SensorFeeds(session) as feeds, WebServer(live, condition, args.host, args.port) as server:
         reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {
             "messages_in": subscriber.received, "messages_undecodable": subscriber.undecodable_total,
             "pages_open": server.streams})
@@ -69,6 +109,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             event(log, "web page ready", url=server.url, fleet=args.fleet)
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
                 messages = subscriber.recv_many(limit=5000, timeout=0.1)
+                feeds.follow(server.watched())
+                messages += feeds.take()
                 if messages:
                     with condition:
                         _take(live, messages)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -32,8 +33,10 @@ TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=u
          ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
 KEEPALIVE_S = 15.0
 """An event stream with nothing to say sends a comment this often (and so notices a closed page)."""
-COALESCE_S = 0.03
+COALESCE_S = 0.015
 """After sending, a stream waits this long so that a burst of verdicts goes out as one message."""
+SENSORS_EVERY_S = 0.5
+"""A machine page whose machine got only new sensor samples is sent them at most this often."""
 
 
 class WebServer:
@@ -56,6 +59,7 @@ class WebServer:
         self.condition = condition
         self.closing = threading.Event()
         self.streams = 0
+        self._watched: Counter[str] = Counter()
         handler = type("Handler", (_Handler,), {"app": self})
         self._httpd = ThreadingHTTPServer((host, port), handler)
         self._httpd.daemon_threads = True
@@ -80,35 +84,61 @@ class WebServer:
         self._httpd.server_close()
         self._thread.join(timeout=5)
 
+    def watched(self) -> set[str]:
+        """Machines (``fleet/machine``) whose page is open now: the service gathers their sensor samples."""
+        with self.condition:
+            return {ident for ident, n in self._watched.items() if n > 0}
+
     def read(self, what: Callable[[FleetLive], Any]) -> Any:
         """``what(live)`` under the lock."""
         with self.condition:
             return what(self.live)
 
-    def wait(self, seen: int, timeout: float) -> None:
-        """Wait until the fleet changed after ``seen`` (or ``timeout`` s, or closing)."""
+    def wait(self, seen: int, chunks: int | None = None, ident: str = "", timeout: float = KEEPALIVE_S) -> bool:
+        """Wait until the fleet changed after ``seen`` (or machine ``ident`` got sensor chunks beyond ``chunks``),
+        or closing (True), or ``timeout`` s passed (False)."""
         with self.condition:
-            self.condition.wait_for(lambda: self.live.seq != seen or self.closing.is_set(), timeout)
+            return self.condition.wait_for(lambda: self.live.seq != seen or self.closing.is_set() or (
+                chunks is not None and self.live.sensor_chunks(ident) != chunks), timeout)
 
     def fleet_events(self, view: PageView) -> Iterator[dict[str, Any] | None]:
-        """The fleet page's messages; None where a keep-alive is due."""
+        """The fleet page's messages; None where a keep-alive is due (nothing to say for :data:`KEEPALIVE_S`)."""
         while not self.closing.is_set():
             message = self.read(view.update)
-            yield message
-            self.wait(view.seq, KEEPALIVE_S)
+            if message is not None:
+                yield message
+            if not self.wait(view.seq, timeout=KEEPALIVE_S):
+                yield None
             time.sleep(COALESCE_S)
 
     def machine_events(self, ident: str) -> Iterator[dict[str, Any] | None]:
-        """A machine page's messages: the machine each time its verdict or evidence changes."""
-        seen = -1
-        while not self.closing.is_set():
+        """A machine page's messages: the machine each time its verdict or evidence changes, and with new sensor
+        samples at most every :data:`SENSORS_EVERY_S`; while the page is open its machine is :meth:`watched`."""
+        seen, chunks, sent = -1, -1, 0.0
+        with self.condition:
+            self._watched[ident] += 1
+        try:
+            while not self.closing.is_set():
+                with self.condition:
+                    live = self.live
+                    changed = seen < 0 or ident in live.changed(seen)
+                    more = live.sensor_chunks(ident) != chunks
+                    due = changed or (more and time.monotonic() - sent >= SENSORS_EVERY_S)
+                    message = live.machine(ident) if due else None
+                    seen = live.seq  # what changed up to here is looked at
+                    if due:
+                        chunks, sent = live.sensor_chunks(ident), time.monotonic()
+                if message is not None:
+                    yield message
+                elif more and not due:
+                    time.sleep(max(0.0, SENSORS_EVERY_S - (time.monotonic() - sent)))
+                    continue
+                if not self.wait(seen, chunks, ident, KEEPALIVE_S):
+                    yield None
+                time.sleep(COALESCE_S)
+        finally:
             with self.condition:
-                live = self.live
-                message = live.machine(ident) if seen < 0 or ident in live.changed(seen) else None
-                seen = live.seq
-            yield message
-            self.wait(seen, KEEPALIVE_S)
-            time.sleep(COALESCE_S)
+                self._watched[ident] -= 1
 
 
 class _Handler(BaseHTTPRequestHandler):

@@ -50,7 +50,8 @@ function stateBand(container, t, width = 960, height = 46) {
 }
 
 // Lines over time, one per series (null values break a line); y from y0 to y1.
-function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height = 160, log = false} = {}) {
+// `marks`: x positions drawn as dashed vertical lines (inside the range only).
+function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height = 160, log = false, marks = []} = {}) {
   const el = svg(width, height);
   if (!(y1 > y0)) { y0 = log ? y0 / 2 : y0 - 1; y1 = log ? y1 * 2 : y1 + 1; }  // one value: a band around it
   const tr = log ? (v) => Math.log10(Math.max(v, 1e-12)) : (v) => v;
@@ -60,6 +61,11 @@ function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height =
   add(el, "line", {x1: PAD.left, x2: width - PAD.right, y1: y(tr(y0)), y2: y(tr(y0)), stroke: "#ccc"});
   add(el, "text", {x: PAD.left - 4, y: y(tr(y1)) + 9, "text-anchor": "end"}, String(+y1.toPrecision(3)));
   add(el, "text", {x: PAD.left - 4, y: y(tr(y0)), "text-anchor": "end"}, String(+y0.toPrecision(3)));
+  for (const m of marks) {
+    if (m < lo || m > hi) continue;
+    add(el, "line", {x1: x(m), x2: x(m), y1: PAD.top, y2: height - PAD.bottom, stroke: "#9aa5b1",
+      "stroke-dasharray": "3 3"});
+  }
   const names = Object.keys(series);
   names.forEach((name, k) => {
     let d = "";

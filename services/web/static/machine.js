@@ -55,6 +55,27 @@ function evidenceSection(m) {
   legend(document.getElementById("e-legend"), entries);
 }
 
+const ORDER = ["voltage", "flow", "speed", "torque", "temperature", "supply_pressure", "load_pressure"];
+
+function sensorsSection(m) {
+  const box = document.getElementById("sensors");
+  const s = m.sensors;
+  if (!s || !s.t.length) {
+    box.innerHTML = `<p class="note">No samples yet: the service follows this machine's sensors (…/sensors) from the
+      moment its page opens.</p>`;
+    return;
+  }
+  const rank = (n) => (ORDER.includes(n) ? ORDER.indexOf(n) : ORDER.length);
+  const names = Object.keys(s.channels).sort((a, b) => rank(a) - rank(b) || a.localeCompare(b));
+  box.innerHTML = names.map((n) => `<div class="sensor"><div class="note">${esc(n)} [${esc(s.units[n])}]</div>` +
+    `<div id="sensor-${esc(n)}"></div></div>`).join("");
+  for (const n of names) {
+    const values = s.channels[n].filter((v) => v != null);
+    lineChart(document.getElementById("sensor-" + n), s.t, {[n]: s.channels[n]},
+      {y0: Math.min(...values), y1: Math.max(...values), height: 80, marks: m.timeline.end_s});
+  }
+}
+
 function draw(m) {
   verdictSection(m);
   const t = m.timeline;
@@ -64,6 +85,7 @@ function draw(m) {
   const entries = lineChart(document.getElementById("probabilities"), t.end_s, t.probabilities);
   legend(document.getElementById("p-legend"), entries);
   evidenceSection(m);
+  sensorsSection(m);
   hw.updates += 1;
   if (hw.firstRowsMs === null) requestAnimationFrame(() => { hw.firstRowsMs = performance.now(); });
 }
