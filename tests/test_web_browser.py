@@ -89,6 +89,7 @@ def wait_states(browser: Chromium, want: dict[str, str], timeout: float) -> dict
     return seen
 
 
+@pytest.mark.slow
 def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         services: tuple[int, str, list[subprocess.Popen]], tmp_path: Path) -> None:
     port, url, running = services
@@ -126,7 +127,8 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
 
 def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_path: Path) -> None:
     """1000 machines: the page draws the rows in view only, scrolling brings the last one, a state filter
-    shows exactly that state's machines (and goes into the address), and the page raises no JavaScript error."""
+    shows exactly that state's machines (and goes into the address), markup in a message is shown as text,
+    and the pages raise no JavaScript error."""
     from hydrowatch.bus import BusSettings, Publisher, free_port, key, open_session
     from hydrowatch.training.chunks import WindowVerdict
     from hydrowatch.training.messages import verdict_batch
@@ -135,6 +137,7 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
     port, http = free_port(), free_port()
     machines = [f"m{i:04d}" for i in range(1000)]
     truth = {m: "load_alert" if i % 50 == 7 else "healthy" for i, m in enumerate(machines)}
+    truth["m0500"] = "<img src=x onerror=window.pwned=1>"  # what comes off the bus is shown, never run
     web = start("services.web", "--fleet", "big", "--port", http, "--bus-port", port)
     try:
         with open_session(BusSettings(port=port)) as session, Publisher(session) as publisher, \
@@ -157,5 +160,11 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
             badges = browser.evaluate("[...document.querySelectorAll('#rows .badge')].map(b => b.textContent)")
             assert badges == ["load_alert"] * 20
             assert browser.exceptions() == []
+            browser.navigate(f"http://127.0.0.1:{http}/?state=warning")
+            browser.wait_for("window.hw.shown === 1", timeout=10)
+            assert browser.evaluate("document.querySelector('#rows .badge').textContent") == truth["m0500"]
+            browser.navigate(f"http://127.0.0.1:{http}/machine?id=big/m0500")
+            browser.wait_for("window.hw.updates > 0", timeout=10)
+            assert browser.evaluate("typeof window.pwned") == "undefined" and browser.exceptions() == []
     finally:
         assert stop(web) == 0

@@ -82,5 +82,5 @@ function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height =
 
 function legend(container, entries) {
   container.innerHTML = entries.map(([name, colour]) =>
-    `<span><span class="sw" style="background:${colour}"></span>${name}</span>`).join("");
+    `<span><span class="sw" style="background:${esc(colour)}"></span>${esc(name)}</span>`).join("");
 }
