@@ -195,3 +195,12 @@ def test_a_machine_keeps_its_last_seconds_of_sensor_samples_thinned_for_its_page
     assert live.machine("f1/m0")["sensors"]["t"][0] == 0.0  # a restarted stream starts again
     with pytest.raises(ParameterError, match="sensor_seconds must be > 0"):
         FleetLive(sensor_seconds=0.0)
+
+
+def test_a_port_in_use_is_one_clear_error(live: FleetLive) -> None:
+    from services.web.server import WebServer
+
+    with WebServer(live, threading.Condition()) as server:
+        port = int(server.url.rsplit(":", 1)[1].strip("/"))
+        with pytest.raises(ParameterError, match=f"Got 127.0.0.1:{port}: .*Pick another --port"):
+            WebServer(live, threading.Condition(), port=port)

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from hydrowatch.bus import StatusReporter, Subscriber, add_bus_arguments, key, key_expr, open_session
+from hydrowatch.bus import Message, StatusReporter, Subscriber, add_bus_arguments, key, key_expr, open_session
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
 from hydrowatch.errors import ParameterError
@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
-def _take(live: FleetLive, messages: Sequence) -> None:
+def _take(live: FleetLive, messages: Sequence[Message]) -> None:
+    """Feed ``live`` with verdicts (``health``), evidence (``kl``) and followed machines' samples (``sensors``)."""
     for message in messages:
         k = message.key
         if k.topic == "sensors":
@@ -79,7 +80,7 @@ class _SensorFeeds:
                 continue  # a page asked for an id that is no machine's: it shows no sensors
             event(log, "sensors followed while the machine's page is open", machine=ident)
 
-    def take(self) -> list:
+    def take(self) -> list[Message]:
         """What came on the followed machines' sensor topics since the last call (no waiting)."""
         return [m for s in self._subscribers.values() for m in s.recv_many(timeout=0.0)]
 

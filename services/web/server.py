@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from hydrowatch.errors import ParameterError
 from hydrowatch.log import get_logger
 from hydrowatch.web.live import FleetLive, PageView, counts, select
 
@@ -61,7 +62,11 @@ class WebServer:
         self.streams = 0
         self._watched: Counter[str] = Counter()
         handler = type("Handler", (_Handler,), {"app": self})
-        self._httpd = ThreadingHTTPServer((host, port), handler)
+        try:
+            self._httpd = ThreadingHTTPServer((host, port), handler)
+        except OSError as exc:
+            raise ParameterError(f"the web page's address must be free to serve on. Got {host}:{port}: {exc.strerror}. "
+                                 "Pick another --port (0: any free one) or stop what serves there.") from None
         self._httpd.daemon_threads = True
         self._thread = threading.Thread(target=self._httpd.serve_forever, name="web-http", daemon=True)
 

@@ -134,7 +134,8 @@ function flush() {
   drawHeader(last);
   if (batch.some((m) => m.snapshot)) stick();
   setHtml("shown", `${order.length} shown`);
-  if (document.getElementById("empty").hidden !== order.length > 0) document.getElementById("empty").hidden = order.length > 0;
+  const empty = document.getElementById("empty");
+  if (empty.hidden !== order.length > 0) empty.hidden = order.length > 0;
   hw.seq = last.seq;
   hw.shown = order.length;
   hw.applied += batch.length;
