@@ -159,6 +159,10 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
             assert browser.evaluate("location.search") == "?state=load_alert"
             badges = browser.evaluate("[...document.querySelectorAll('#rows .badge')].map(b => b.textContent)")
             assert badges == ["load_alert"] * 20
+            browser.evaluate("const box = document.getElementById('machine'); box.value = 'M095';"
+                             "box.dispatchEvent(new Event('input'))")  # and only ids with 'm095' in them
+            browser.wait_for("window.hw.shown === 1 && window.hw.snapshots === 3", timeout=10)
+            assert browser.evaluate("location.search") == "?state=load_alert&machine=M095"  # m0957
             assert browser.exceptions() == []
             browser.navigate(f"http://127.0.0.1:{http}/?state=warning")
             browser.wait_for("window.hw.shown === 1", timeout=10)
@@ -168,3 +172,28 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
             assert browser.evaluate("typeof window.pwned") == "undefined" and browser.exceptions() == []
     finally:
         assert stop(web) == 0
+
+
+def test_a_degradation_index_shows_when_a_verdict_carries_one() -> None:
+    """No message carries one yet (health_verdict v1): the pages show it as soon as one does (fed here directly)."""
+    import threading
+
+    from hydrowatch.web.live import FleetLive
+    from services.web.server import WebServer
+
+    live = FleetLive()
+    index = {"load": {"value": 0.4, "ci95": [0.3, 0.5], "rate_per_h": 0.1, "alert_in_s": 21600.0}}
+    live.add_verdict("f1", "m0", {"window_start": 0.0, "window_end": 5.0, "state": "healthy", "probability": 0.9,
+                                  "probabilities": {"healthy": 0.9}, "reason": None, "degradation": index})
+    live.add_verdict("f1", "m1", {"window_start": 0.0, "window_end": 5.0, "state": "healthy", "probability": 0.9,
+                                  "probabilities": {"healthy": 0.9}, "reason": None})
+    with WebServer(live, threading.Condition()) as server, Chromium(width=1000, height=400) as browser:
+        browser.navigate(server.url)
+        browser.wait_for("window.hw.shown === 2", timeout=10)
+        assert browser.evaluate("document.querySelector('th.degcol').hidden") is False
+        shown = "load 0.40 [0.30–0.50] ↑0.10/h alert in 6.0 h"
+        assert browser.evaluate("document.querySelector('#rows tr[data-id=\"f1/m0\"] td.degcol').textContent") == shown
+        browser.navigate(server.url + "machine?id=f1/m0")
+        browser.wait_for("window.hw.updates > 0", timeout=10)
+        assert shown in browser.evaluate("document.getElementById('verdict').textContent")
+        assert browser.exceptions() == []

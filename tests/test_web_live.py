@@ -58,6 +58,7 @@ def test_filters_by_state_level_attention_and_fleet(live: FleetLive) -> None:
     assert ids(state="warning") == ["f1/m1"]
     assert ids(fleet="f1") == ["f1/m3", "f1/m1", "f1/m0"]
     assert ids(state="healthy", fleet="f2") == []
+    assert ids(machine="M1") == ["f1/m1"] and ids(machine="m", state="alert") == ["f2/m2"]
     assert counts(rows) == {"alert": 1, "unknown": 1, "warning": 1, "invalid": 0, "healthy": 1}
 
 
@@ -129,6 +130,7 @@ def test_a_filtered_page_drops_a_machine_that_leaves_its_filter(live: FleetLive)
     assert second["rows"] == [] and second["order"] == ["f1/m3"]
     live.add_verdict("f2", "m2", verdict(15.0, "healthy"))  # another fleet: nothing this page shows changed
     assert view.update(live) is None
+    assert PageView(machine="3").update(live)["order"] == ["f1/m3"]
 
 
 def _get(url: str) -> tuple[int, bytes, str]:

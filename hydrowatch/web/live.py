@@ -202,7 +202,8 @@ class FleetLive:
                 "sensors": self._sensors(m)}
 
 
-def select(rows: Iterable[dict[str, Any]], state: str | None = None, fleet: str | None = None) -> list[dict[str, Any]]:
+def select(rows: Iterable[dict[str, Any]], state: str | None = None, fleet: str | None = None,
+           machine: str | None = None) -> list[dict[str, Any]]:
     """The rows a page's filters keep, in their order.
 
     Parameters
@@ -214,10 +215,15 @@ def select(rows: Iterable[dict[str, Any]], state: str | None = None, fleet: str 
         (``alert``, ``unknown``, ``warning``, ``invalid``, ``healthy``); or one state (``load_alert``).
     fleet : str or None
         None or ``""``: every fleet; else that fleet only.
+    machine : str or None
+        None or ``""``: every machine; else the machines whose id contains it (case-insensitive).
     """
     out = []
+    needle = (machine or "").lower()
     for row in rows:
         if fleet and row["fleet"] != fleet:
+            continue
+        if needle and needle not in row["machine"].lower():
             continue
         if state and not (row["state"] == state or row["level"] == state or (state == ATTENTION and
                                                                                row["state"] != HEALTHY)):
@@ -237,7 +243,7 @@ class PageView:
 
     Parameters
     ----------
-    state, fleet : str or None
+    state, fleet, machine : str or None
         The page's filters, as :func:`select` takes them.
 
     Each :meth:`update` returns one message for the page (None when nothing it shows changed):
@@ -248,9 +254,10 @@ class PageView:
     filter (every state), so that the state filter can offer every state there is.
     """
 
-    def __init__(self, state: str | None = None, fleet: str | None = None) -> None:
+    def __init__(self, state: str | None = None, fleet: str | None = None, machine: str | None = None) -> None:
         self.state = state or None
         self.fleet = fleet or None
+        self.machine = machine or None
         self.seq = -1
         self._order: list[str] | None = None
 
@@ -260,7 +267,7 @@ class PageView:
             return None
         every = live.rows()
         in_fleet = select(every, fleet=self.fleet)
-        shown = select(in_fleet, state=self.state)
+        shown = select(in_fleet, state=self.state, machine=self.machine)
         order = [r["id"] for r in shown]
         snapshot = self._order is None
         if snapshot:

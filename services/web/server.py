@@ -4,8 +4,8 @@ Standard library only (``http.server.ThreadingHTTPServer``: one thread per conne
 event stream holds). Routes:
 
 * ``/`` the fleet page, ``/machine?id=<fleet>/<machine>`` a machine page, ``/static/<file>`` their files;
-* ``/api/fleet?state=&fleet=`` the rows shown (JSON), ``/api/machine?id=`` one machine (JSON, 404 unknown);
-* ``/events?state=&fleet=`` the fleet page's stream (:class:`hydrowatch.web.live.PageView` messages),
+* ``/api/fleet?state=&fleet=&machine=`` the rows shown (JSON), ``/api/machine?id=`` one machine (JSON, 404 unknown);
+* ``/events?state=&fleet=&machine=`` the fleet page's stream (:class:`hydrowatch.web.live.PageView` messages),
   ``/events/machine?id=`` a machine page's stream (the machine, each time it changes).
 
 Every read of the fleet happens under ``condition`` (the bus loop writes under it and notifies).
@@ -179,7 +179,7 @@ class _Handler(BaseHTTPRequestHandler):
     def do_GET(self) -> None:  # noqa: N802 (http.server's name)
         url = urlsplit(self.path)
         query = {k: v[-1] for k, v in parse_qs(url.query).items()}
-        state, fleet, ident = query.get("state"), query.get("fleet"), query.get("id", "")
+        state, fleet, machine, ident = query.get("state"), query.get("fleet"), query.get("machine"), query.get("id", "")
         if url.path in ("/", "/index.html"):
             self._file("fleet.html")
         elif url.path == "/machine":
@@ -188,14 +188,14 @@ class _Handler(BaseHTTPRequestHandler):
             self._file(url.path.removeprefix("/static/"))
         elif url.path == "/api/fleet":
             rows = self.app.read(lambda live: live.rows())
-            shown = select(rows, state=state, fleet=fleet)
+            shown = select(rows, state=state, fleet=fleet, machine=machine)
             self._json({"rows": shown, "counts": counts(select(rows, fleet=fleet))})
         elif url.path == "/api/machine":
             found = self.app.read(lambda live: live.machine(ident))
             self._json(found if found is not None else {"error": f"no verdict of machine {ident!r} yet"},
                        HTTPStatus.OK if found is not None else HTTPStatus.NOT_FOUND)
         elif url.path == "/events":
-            self._stream(self.app.fleet_events(PageView(state, fleet)))
+            self._stream(self.app.fleet_events(PageView(state, fleet, machine)))
         elif url.path == "/events/machine":
             self._stream(self.app.machine_events(ident))
         else:

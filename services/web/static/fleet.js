@@ -18,17 +18,6 @@ let anyDegradation = false;
 // what tests and the benchmark read: first rows drawn (ms after navigation), every update's lag
 const hw = window.hw = {seq: -1, snapshots: 0, firstRowsMs: null, lags: [], applied: 0, shown: 0};
 
-function degradationHtml(d) {
-  if (!d) return "";
-  return Object.entries(d).map(([fault, v]) => {
-    const value = typeof v === "object" ? v.value : v;
-    const ci = v && v.ci95 ? ` [${v.ci95[0].toFixed(2)}–${v.ci95[1].toFixed(2)}]` : "";
-    const trend = v && v.rate_per_h != null ? ` ${v.rate_per_h >= 0 ? "↑" : "↓"}${Math.abs(v.rate_per_h).toFixed(2)}/h` : "";
-    const alert = v && v.alert_in_s != null ? ` alert in ${(v.alert_in_s / 3600).toFixed(1)} h` : "";
-    return `<span class="deg">${esc(fault)} ${Number(value).toFixed(2)}${ci}${trend}${alert}</span>`;
-  }).join("");
-}
-
 function cells(r) {
   const href = "/machine?id=" + encodeURIComponent(r.id);
   return `<td><a href="${href}">${esc(r.machine)}</a></td><td>${esc(r.fleet)}</td>` +
@@ -154,10 +143,11 @@ function connect(first) {
   if (source) source.close();
   if (first !== true) window.scrollTo(0, 0);  // another filter: its most urgent machines first
   const params = new URLSearchParams();
-  for (const id of ["state", "fleet"]) {
+  for (const id of ["state", "fleet", "machine"]) {
     const v = first === true ? new URLSearchParams(location.search).get(id) : document.getElementById(id).value;
     if (v) params.set(id, v);
   }
+  if (first === true) document.getElementById("machine").value = params.get("machine") || "";
   history.replaceState(null, "", params.toString() ? "?" + params : location.pathname);
   source = new EventSource("/events?" + params);
   showConnection(source);
@@ -168,6 +158,11 @@ function connect(first) {
 }
 
 for (const id of ["state", "fleet"]) document.getElementById(id).addEventListener("change", connect);
+let typing = null;  // the machine filter follows typing after a pause (one new stream, not one per key)
+document.getElementById("machine").addEventListener("input", () => {
+  clearTimeout(typing);
+  typing = setTimeout(connect, 250);
+});
 document.getElementById("counts").addEventListener("click", (e) => {
   const level = e.target.dataset && e.target.dataset.level;
   if (!level) return;

@@ -13,7 +13,8 @@ function verdictSection(m) {
     <span><span class="badge">${esc(r.state)}</span> p = ${r.p.toFixed(2)}</span>
     <span><b>since</b> ${since} (t = ${r.since_s.toFixed(1)} s, ${r.windows} windows received)</span>
     <span><b>last window</b> ends t = ${r.last_s.toFixed(1)} s</span>
-    <span><b>model</b> ${esc(m.model_version)}</span></div>
+    <span><b>model</b> ${esc(m.model_version)}</span>
+    ${r.degradation ? `<span><b>degradation</b> ${degradationHtml(r.degradation)}</span>` : ""}</div>
     <p class="note">${esc(r.why)}</p>`;
 }
 
