@@ -206,3 +206,21 @@ def test_a_port_in_use_is_one_clear_error(live: FleetLive) -> None:
         port = int(server.url.rsplit(":", 1)[1].strip("/"))
         with pytest.raises(ParameterError, match=f"Got 127.0.0.1:{port}: .*Pick another --port"):
             WebServer(live, threading.Condition(), port=port)
+
+
+def test_a_timeline_keeps_the_last_verdicts_in_order_and_states_that_come_later() -> None:
+    from hydrowatch.web.live import Timeline
+
+    timeline = Timeline(3)
+    assert timeline.to_dict()["state"] == [] and len(timeline) == 0
+    timeline.append(0.0, 5.0, "healthy", 0.9, {"healthy": 0.9, "load_alert": 0.1})
+    timeline.append(5.0, 10.0, "invalid", 0.0, {})
+    timeline.append(10.0, 15.0, "unknown", 0.0, {"healthy": 0.5, "load_alert": 0.5})
+    timeline.append(15.0, 20.0, "motor_alert", 0.8, {"healthy": 0.1, "load_alert": 0.1, "motor_alert": 0.8})
+    d = timeline.to_dict()
+    assert len(timeline) == 3 and timeline.count == 4
+    assert d["start_s"] == [5.0, 10.0, 15.0] and d["end_s"] == [10.0, 15.0, 20.0]
+    assert d["state"] == ["invalid", "unknown", "motor_alert"] and d["level"] == ["invalid", "unknown", "alert"]
+    assert d["p"] == [0.0, 0.0, 0.8]
+    assert d["probabilities"] == {"healthy": [None, 0.5, 0.1], "load_alert": [None, 0.5, 0.1],
+                                  "motor_alert": [None, None, 0.8]}
