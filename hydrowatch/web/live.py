@@ -12,6 +12,7 @@ A machine's id on the page is ``<fleet>/<machine>``.
 
 from __future__ import annotations
 
+import sys
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -169,7 +170,9 @@ class FleetLive:
         ident, m = self._machine(fleet, machine)
         scores: dict[str, dict[str, float]] = {}
         for r in rows:
-            scores.setdefault(str(r["sensor"]), {})[str(r["state"])] = float(r["relative_entropy"])
+            # (names interned: a fleet's evidence repeats the same few names millions of times)
+            scores.setdefault(sys.intern(str(r["sensor"])), {})[sys.intern(str(r["state"]))] = float(
+                r["relative_entropy"])
         first = rows[0]
         m.evidence.append({"window_start": float(first["window_start"]), "window_end": float(first["window_end"]),
                            "model_version": first.get("model_version"), "scores": scores})
