@@ -173,8 +173,11 @@ def test_the_server_serves_pages_json_and_event_streams(live: FleetLive) -> None
             update = json.loads(stream.readline().decode().removeprefix("data: "))
             # both alerts since t = 5 s: then by id
             assert [r["id"] for r in update["rows"]] == ["f1/m0"] and update["order"] == ["f1/m0", "f2/m2"]
+        assert server.watched() == set()
         with urllib.request.urlopen(base + "events/machine?id=f2/m2", timeout=10) as stream:
             assert json.loads(stream.readline().decode().removeprefix("data: "))["row"]["id"] == "f2/m2"
+            assert server.watched() == {"f2/m2"}  # the service follows its sensors while the page is open
+            assert server.streams >= 1  # (a stream whose page closed counts until its next write fails)
 
 
 def test_a_machine_keeps_its_last_seconds_of_sensor_samples_thinned_for_its_page() -> None:

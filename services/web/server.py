@@ -17,7 +17,7 @@ import json
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -106,7 +106,7 @@ class WebServer:
             return self.condition.wait_for(lambda: self.live.seq != seen or self.closing.is_set() or (
                 chunks is not None and self.live.sensor_chunks(ident) != chunks), timeout)
 
-    def fleet_events(self, view: PageView) -> Iterator[dict[str, Any] | None]:
+    def fleet_events(self, view: PageView) -> Generator[dict[str, Any] | None, None, None]:
         """The fleet page's messages; None where a keep-alive is due (nothing to say for :data:`KEEPALIVE_S`)."""
         while not self.closing.is_set():
             message = self.read(view.update)
@@ -116,7 +116,7 @@ class WebServer:
                 yield None
             time.sleep(COALESCE_S)
 
-    def machine_events(self, ident: str) -> Iterator[dict[str, Any] | None]:
+    def machine_events(self, ident: str) -> Generator[dict[str, Any] | None, None, None]:
         """A machine page's messages: the machine each time its verdict or evidence changes, and with new sensor
         samples at most every :data:`SENSORS_EVERY_S`; while the page is open its machine is :meth:`watched`."""
         seen, chunks, sent = -1, -1, 0.0
@@ -154,11 +154,11 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base class's name)
         log.debug("%s " + format, self.address_string(), *args)
 
-    def _send(self, status: int, body: bytes, content_type: str, cache: bool = False) -> None:
+    def _send(self, status: int, body: bytes, content_type: str) -> None:
         self.send_response(status)
         self.send_header("Content-Type", content_type)
         self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "max-age=300" if cache else "no-store")
+        self.send_header("Cache-Control", "no-store")
         self.end_headers()
         if self.command != "HEAD":
             self.wfile.write(body)
@@ -201,7 +201,7 @@ class _Handler(BaseHTTPRequestHandler):
         else:
             self._send(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
 
-    def _stream(self, messages: Iterator[dict[str, Any] | None]) -> None:
+    def _stream(self, messages: Generator[dict[str, Any] | None, None, None]) -> None:
         """Server-sent events: one ``data:`` line of JSON per message, a comment as keep-alive."""
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
@@ -209,7 +209,8 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Connection", "close")
         self.end_headers()
         self.close_connection = True
-        self.app.streams += 1
+        with self.app.condition:
+            self.app.streams += 1
         try:
             for message in messages:
                 text = ": keep-alive\n\n" if message is None else (
@@ -219,4 +220,6 @@ class _Handler(BaseHTTPRequestHandler):
         except (BrokenPipeError, ConnectionResetError):
             pass  # the page went away
         finally:
-            self.app.streams -= 1
+            messages.close()  # runs the stream's own clean-up (a machine page stops being watched)
+            with self.app.condition:
+                self.app.streams -= 1
