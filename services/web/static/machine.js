@@ -31,8 +31,10 @@ function evidenceSection(m) {
   const states = Object.keys(last.scores[rows[0]]);
   const verdict = m.row.state;
   const values = rows.flatMap((s) => states.map((k) => last.scores[s][k]));
-  const lo = Math.min(...values), hi = Math.max(...values);
-  const shade = (v) => `rgba(198,40,40,${(0.08 + 0.6 * (Math.log(v / lo + 1e-12) / Math.log(hi / lo + 1e-12) || 0)).toFixed(2)})`;
+  // shade on a log scale from the smallest to the largest score (a score of 0 counts as 1e-9)
+  const lo = Math.max(Math.min(...values), 1e-9), hi = Math.max(...values, lo);
+  const share = (v) => Math.min(1, Math.max(0, Math.log(Math.max(v, lo) / lo) / (Math.log(hi / lo) || 1)));
+  const shade = (v) => `rgba(198,40,40,${(0.08 + 0.6 * share(v)).toFixed(2)})`;
   let html = `<p class="note">Last window ${last.window_start.toFixed(1)}–${last.window_end.toFixed(1)} s: how far the
     window's residuals are from each trained state's, per sensor or relation (smaller = closer; relative entropy in
     nats for entropy models, relation score F for parity models). The verdict's state is outlined.</p>
