@@ -41,7 +41,7 @@ import numpy as np
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
-from hydrowatch.condition.oil import OIL_RANGE, leakage_range, merged_estimates, oil_box, oil_parts, temperature_known
+from hydrowatch.condition.oil import OIL_RANGE, leakage_range, oil_box, oil_parts, temperature_known
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, window_starts
@@ -341,7 +341,7 @@ class ConditionFeatures:
                 at = np.zeros(n, dtype=bool)
                 at[np.flatnonzero(mask)[ok]] = True
                 found.append((at, estimates))
-        return out, valid, merged_estimates(found, valid)
+        return out, valid, E.merged_estimates(found, valid)
 
     def _evidence(self, w: np.ndarray, known: bool) -> tuple[np.ndarray, np.ndarray, E.ParityEstimates | None]:
         """:meth:`evidence_and_estimates` of one oil part (``known``: the windows carry the oil temperature)."""

@@ -29,7 +29,6 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from hydrowatch.condition.estimates import ParityEstimates
 from hydrowatch.plant.parameters import PlantParameters
 
 OIL_RANGE = 5.0
@@ -88,19 +87,3 @@ def oil_parts(windows: np.ndarray, width: int) -> list[tuple[np.ndarray, np.ndar
     return [(mask, windows[mask] if flag else windows[mask][:, :, :width], flag)
             for flag, mask in ((True, known), (False, ~known)) if mask.any()]
 
-
-def merged_estimates(found: list[tuple[np.ndarray, ParityEstimates]], valid: np.ndarray) -> ParityEstimates | None:
-    """One :class:`~hydrowatch.condition.estimates.ParityEstimates` of the ``valid`` windows (mask over all) from
-    those of the oil parts, each with a mask of its windows' positions among all; None when there are none."""
-    if len(found) <= 1:
-        return found[0][1] if found else None
-    fields = []
-    for name in ("severity", "mse", "curvature"):
-        merged = {}
-        for key in getattr(found[0][1], name):
-            full = np.full(valid.size, np.nan)
-            for at, estimates in found:
-                full[at] = getattr(estimates, name)[key]
-            merged[key] = full[valid]
-        fields.append(merged)
-    return ParityEstimates(*fields)
