@@ -69,6 +69,8 @@ class TopologySettings:
         The MLflow server's backend store in PostgreSQL (else SQLite).
     model_name, alias : str
         What the trainer registers and the scorers follow.
+    train_data : str or None
+        Folder the trainer trains on (None: the recorders' folder, as compose.yaml).
     extra : dict of str to tuple of str
         More flags per service, by host name (e.g. ``{"score-0": ("--no-recovery",)}``).
     """
@@ -87,6 +89,7 @@ class TopologySettings:
     postgres: bool = True
     model_name: str = "hydrowatch"
     alias: str = "champion"
+    train_data: str | None = None
     extra: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
@@ -142,9 +145,10 @@ class Topology:
         found = {
             "router": ("router", ["--listen", f"tcp/{self.network.hosts['router'].address}:{ROUTER_PORT}"]),
             "plant": ("plant", plant),
-            "trainer": ("trainer", ["--data", str(self.recordings), "--out", str(self.work / "models" / "latest"),
-                                    "--every", str(s.retrain), "--method", "parity", "--model-name", s.model_name,
-                                    "--alias", s.alias, *tracking]),
+            "trainer": ("trainer", ["--data", s.train_data or str(self.recordings),
+                                    "--out", str(self.work / "models" / "latest"), "--every", str(s.retrain),
+                                    "--method", "parity", "--model-name", s.model_name, "--alias", s.alias,
+                                    *tracking]),
         }
         for i in range(2):
             found[f"record-{i}"] = ("record", ["--fleet", s.fleet, "--shard", f"{i}/2", "--out", str(self.recordings),
