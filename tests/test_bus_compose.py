@@ -145,7 +145,7 @@ def test_compose_runs_the_router_topology_the_tests_start(compose: dict, tmp_pat
         parsed[host] = service_parser(module.NAME, module.HELP, module.add_arguments).parse_args(argv)
     for host, args in parsed.items():
         _, theirs, env = deployed[host]
-        for name in ("shard", "method", "model_name", "alias"):
+        for name in ("shard", "method", "model_name", "alias", "history"):
             assert getattr(args, name, None) == getattr(theirs, name, None), (host, name)
         if host.startswith("score"):
             assert args.model == theirs.model == f"models:/{parsed['trainer'].model_name}@{parsed['trainer'].alias}"

@@ -54,7 +54,8 @@ class TopologySettings:
     plant_seconds : float or None
         Simulated seconds the plant runs (None: until stopped).
     history : float
-        Seconds of chunks the plant keeps for recovery (its ``--history``).
+        Seconds of chunks the plant keeps for recovery (its ``--history``; 30 as compose.yaml: enough for a router
+        restart).
     retrain : float
         Seconds between the trainer's trainings (its ``--every``).
     rotate_s : float
@@ -80,7 +81,7 @@ class TopologySettings:
     states: str = "healthy,load_warning"
     speed: float = 20.0
     plant_seconds: float | None = None
-    history: float = 5.0
+    history: float = 30.0
     retrain: float = 15.0
     rotate_s: float = 5.0
     follow_s: float = 2.0
