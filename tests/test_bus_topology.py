@@ -117,3 +117,56 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
         # the alias moved once: v1's verdicts, then v2's, never back
         last_v1 = max(i for i, v in enumerate(versions_seen) if v.endswith("/v1"))
         assert all(not v.endswith("/v1") for v in versions_seen[last_v1 + 1:]), machine
+
+
+def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_registry_outage(monkeypatch) -> None:
+    # a registry that cannot be reached is logged once, the model in use kept; the new version is taken when it returns
+    import argparse
+    import logging
+    import threading
+
+    import hydrowatch.training.bundle as bundle_module
+    import hydrowatch.training.tracking as tracking_module
+    import services.scorer as scorer
+
+    answers: list = [("1", "src"), ConnectionError("refused"), ConnectionError("refused"), ("2", "src")]
+
+    def resolve(uri: str, tracking: str | None = None) -> tuple[str, str]:
+        answer = answers.pop(0) if answers else ("2", "src")
+        if isinstance(answer, Exception):
+            raise answer
+        return answer
+
+    loaded: list[str] = []
+
+    def load(model: str, tracking: str | None = None) -> argparse.Namespace:
+        loaded.append(model)
+        return argparse.Namespace(version=f"hydrowatch/v{len(loaded)}")
+
+    monkeypatch.setattr(tracking_module, "resolve_version", resolve)
+    monkeypatch.setattr(bundle_module, "load_bundle", load)
+    records: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
+    logger = logging.getLogger("hydrowatch.services.scorer")
+    logger.addHandler(handler)
+    previous = logger.level
+    logger.setLevel(logging.INFO)
+    stop = threading.Event()
+    try:
+        model = scorer._Model(argparse.Namespace(model="models:/hydrowatch@champion", tracking_uri="http://x:5000",
+                                                 follow_alias=0.02))
+        assert model.bundle.version == "hydrowatch/v1" and not model.moved()
+        model.follow(stop)
+        deadline = time.monotonic() + 10
+        while not model.moved():
+            assert time.monotonic() < deadline, "the new version was never taken"
+            time.sleep(0.01)
+        assert model.bundle.version == "hydrowatch/v2" and loaded == ["models:/hydrowatch@champion"] * 2
+    finally:
+        stop.set()
+        model.join()
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+    assert records.count("registry unreachable; scoring on with the model in use") == 1
+    assert records.count("registry reachable again") == 1 and "model switched" in records
