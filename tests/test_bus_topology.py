@@ -4,9 +4,10 @@ A router, then plant, two recorder shards, two scorer shards and the trainer as 
 its own process on its own host: network namespaces joined by a bridge where this machine allows it (root and
 iproute2), else loopback. An MLflow tracking server as a real ``mlflow server`` process on a throwaway PostgreSQL
 cluster (SQLite where PostgreSQL or its driver is absent). The trainer registers over HTTP, the scorers load the
-model by alias over HTTP and move to the new version when the alias moves, and every machine gets verdicts. Then the
-router and the MLflow server are killed (SIGKILL) and restarted: every service survives, and every machine is judged
-by the version the trainer registers after the restart (item 3; benchmarks/bench_bus_router_faults.py measures it).
+model by alias over HTTP, and every machine gets verdicts of v1. Then the router and the MLflow server are killed
+(SIGKILL) and restarted: every service survives, and every machine is judged by the version the trainer registers
+after the restart, the scorers moving to it when the alias moves (item 3; benchmarks/bench_bus_router_faults.py
+measures it).
 """
 
 from __future__ import annotations
@@ -81,11 +82,8 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
             wait_until(lambda: judged_by(f"{settings.model_name}/v1"), 90, "verdicts of v1 on every machine",
                        topology)
             first = time.monotonic() - began
-            wait_until(lambda: judged_by(f"{settings.model_name}/v2"), 90, "verdicts of v2 on every machine",
-                       topology)
-            second = time.monotonic() - began
-            # item 3: the router and the MLflow server crash (SIGKILL) and come back; every service survives both,
-            # the verdicts come back through the new router and the scorers follow the version registered next
+            # the router and the MLflow server crash (SIGKILL) and come back (item 3); every service survives both,
+            # the verdicts come back through the new router and the scorers move to the version registered next
             def registered() -> int:
                 return int((registry(topology.tracking_uri, settings.model_name, settings.alias)[0] or ["0"])[-1])
 
@@ -100,23 +98,23 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
                        topology)
             newer = f"{settings.model_name}/v{latest + 1}"
             wait_until(lambda: judged_by(newer), 90, f"verdicts of {newer} on every machine", topology)
-            third = time.monotonic() - began
+            second = time.monotonic() - began
         versions, at, sources = registry(topology.tracking_uri, settings.model_name, settings.alias)
         codes = topology.close()
-    print(f"{hosts}, {topology.backend}: MLflow ready in {ready:.1f} s, every machine judged by v1 at {first:.1f} s "
-          f"and v2 at {second:.1f} s; router and MLflow killed at {crashed:.1f} s, MLflow back in {back:.1f} s, "
-          f"{newer} on every machine at {third:.1f} s; {time.monotonic() - began:.1f} s in all")
+    print(f"{hosts}, {topology.backend}: MLflow ready in {ready:.1f} s, every machine judged by v1 at {first:.1f} s; "
+          f"router and MLflow killed at {crashed:.1f} s, MLflow back in {back:.1f} s, {newer} on every machine at "
+          f"{second:.1f} s; {time.monotonic() - began:.1f} s in all")
     assert all(code in (0, -15) for code in codes.values()), codes
-    assert versions[:3] == ["1", "2", "3"] and at == versions[-1], (versions, at)
+    assert versions[:2] == ["1", "2"] and at == versions[-1], (versions, at)
     assert all(s.startswith("mlflow-artifacts:") for s in sources), sources  # uploaded through the server (HTTP)
     assert any((tmp_path / "mlartifacts").rglob("bundle.json")) or any((tmp_path / "mlartifacts").rglob("*"))
     found = heard.by_machine()
     assert sorted(found) == machines, "every machine gets verdicts"
     for machine, verdicts in found.items():
         versions_seen = [v.model_version for v in verdicts]
-        # the alias moved once: v1's verdicts, then v2's, never back
+        # the alias moved: v1's verdicts, then newer ones, never back
         last_v1 = max(i for i, v in enumerate(versions_seen) if v.endswith("/v1"))
-        assert all(not v.endswith("/v1") for v in versions_seen[last_v1 + 1:]), machine
+        assert versions_seen[last_v1 + 1:] and all(not v.endswith("/v1") for v in versions_seen[last_v1 + 1:]), machine
 
 
 def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_registry_outage(monkeypatch) -> None:
