@@ -168,3 +168,23 @@ def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_regis
         logger.setLevel(previous)
     assert records.count("registry unreachable; scoring on with the model in use") == 1
     assert records.count("registry reachable again") == 1 and "model switched" in records
+
+
+def test_the_trainer_counts_an_unreachable_tracking_server_as_a_skipped_training(monkeypatch, tmp_path: Path) -> None:
+    # past MLflow's own retries a server that stays down fails the training, not the trainer: the next one registers
+    import argparse
+
+    import hydrowatch.training.pipeline as pipeline
+    import services.trainer as trainer
+    from hydrowatch.errors import DataError
+
+    def train_each(*args: object, **kwargs: object):
+        raise ConnectionError("Max retries exceeded with url: /api/2.0/mlflow/runs/create")
+        yield  # a generator, as the real one
+
+    monkeypatch.setattr(pipeline, "train_each", train_each)
+    args = argparse.Namespace(data=tmp_path, out=tmp_path / "model", tracking_uri="http://x:5000", experiment="e",
+                              no_register=False, model_name="hydrowatch", alias="champion", check_seconds=0.0)
+    failure: list[DataError] = []
+    trainer._train_once(args, [], failure)
+    assert len(failure) == 1 and "not logged or registered in MLflow: Max retries exceeded" in str(failure[0])
