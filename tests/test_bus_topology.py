@@ -21,8 +21,6 @@ import pytest
 from hydrowatch.testbed import namespaces_unavailable, postgres_unavailable
 from hydrowatch.testbed.topology import Topology, TopologySettings, VerdictLog
 
-NO_NAMESPACES = namespaces_unavailable()
-NO_POSTGRES = postgres_unavailable()
 BOTH = os.environ.get("HYDROWATCH_TOPOLOGY_BOTH") == "1"
 """Run the loopback variant also where namespaces work (it is otherwise the fallback, to keep `make test` short)."""
 
@@ -56,6 +54,8 @@ def registry(uri: str, name: str, alias: str) -> tuple[list[str], str | None, li
 @pytest.mark.slow
 @pytest.mark.parametrize("hosts", ["namespaces", "loopback"])
 def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, tmp_path: Path) -> None:
+    # asked here, not at collection: the probe makes and removes a namespace and a bridge
+    NO_NAMESPACES, NO_POSTGRES = namespaces_unavailable(), postgres_unavailable()  # noqa: N806
     if hosts == "namespaces" and NO_NAMESPACES:
         pytest.skip(f"hosts in network namespaces: {NO_NAMESPACES}; the loopback variant runs instead")
     if hosts == "loopback" and not NO_NAMESPACES and not BOTH:
