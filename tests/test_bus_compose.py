@@ -1,4 +1,6 @@
-"""compose.yaml stays equivalent to the topology that ``hydrowatch up`` and the tests start (issue 18, item 6).
+"""compose.yaml stays equivalent to the topology that ``hydrowatch up`` and the tests start (issue 18, item 6):
+``up`` on loopback and :class:`hydrowatch.testbed.topology.Topology`, the router topology of
+tests/test_bus_topology.py.
 
 The same services (plant, recorder shards, trainer, scorer shards), each command's flags parsed by that service's
 own parser (what ``python -m services.<name>`` accepts, not only the ``hydrowatch`` CLI), the router endpoint the
@@ -63,7 +65,7 @@ def hydrowatch_services(compose: dict) -> dict[str, tuple[str, argparse.Namespac
 def test_compose_services_are_valid_hydrowatch_invocations(compose: dict) -> None:
     assert compose["zenoh"]["image"].startswith("eclipse/zenoh")
     mlflow = " ".join(compose["mlflow"]["command"].split())
-    assert "--backend-store-uri postgresql://" in mlflow and "postgres" in compose
+    assert "--backend-store-uri postgresql+psycopg2://" in mlflow and "postgres" in compose
     commands = {name: command for name, (command, _, _) in hydrowatch_services(compose).items()}
     assert commands == {"plant": "plant", "record-0": "record", "record-1": "record", "trainer": "trainer",
                         "score-0": "scorer", "score-1": "scorer", "web": "web"}
@@ -125,3 +127,31 @@ def test_compose_topology_is_the_one_up_starts(compose: dict) -> None:
         assert recorder.rotate_s <= max(trainer.every / 2, 10.0), name
     for name, scorer in by_command["scorer"]:  # the scorers follow what the trainer registers
         assert scorer.model == f"models:/{trainer.model_name}@{trainer.alias}" and scorer.follow_alias > 0, name
+
+
+def test_compose_runs_the_router_topology_the_tests_start(compose: dict, tmp_path: Path) -> None:
+    from hydrowatch.testbed.topology import MODULES, Topology, TopologySettings
+
+    tested = Topology(tmp_path, TopologySettings(namespaces=False, postgres=False)).commands()
+    deployed = hydrowatch_services(compose)
+    # the same services on the same hosts (compose's router is zenohd, the test's the same router from zenoh's
+    # Python package; compose's MLflow server runs on PostgreSQL, as the test's where PostgreSQL is installed)
+    assert tested.pop("router")[0] == "router" and "zenoh" in compose and "postgres" in compose
+    assert {host: command for host, (command, _) in tested.items()} == {
+        name: command for name, (command, _, _) in deployed.items()}
+    parsed = {}
+    for host, (command, argv) in tested.items():
+        module = importlib.import_module(MODULES[command])
+        parsed[host] = service_parser(module.NAME, module.HELP, module.add_arguments).parse_args(argv)
+    for host, args in parsed.items():
+        _, theirs, env = deployed[host]
+        for name in ("shard", "method", "model_name", "alias", "history"):
+            assert getattr(args, name, None) == getattr(theirs, name, None), (host, name)
+        if host.startswith("score"):
+            assert args.model == theirs.model == f"models:/{parsed['trainer'].model_name}@{parsed['trainer'].alias}"
+            assert args.follow_alias > 0 and theirs.follow_alias > 0
+        if host.startswith("record"):  # the trainer reads what the recorders write, in both
+            assert args.out == parsed["trainer"].data and args.rotate_s <= max(parsed["trainer"].every / 2, 10.0)
+        if host != "trainer":  # clients of the router, in both
+            assert settings_from_args(args).resolved_mode == "client" and len(args.connect) == 1, host
+            assert env[ENV_CONNECT].rsplit(":", 1)[1] == args.connect[0].rsplit(":", 1)[1], host

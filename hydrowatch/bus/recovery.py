@@ -239,6 +239,8 @@ class GapRecovery:
             if message is None or span is None or not request.start - 1e-9 <= span[0] < request.end - 1e-9 \
                     or _stamp(span[0]) in filled:
                 continue  # refused, undecodable, outside the range, or already taken
+            if request.kind == "tail" and span[0] < self._next[request.key][0] - 0.5 * self._next[request.key][1]:
+                continue  # arrived on the bus, in order, since the tail was asked for: already written
             filled.add(_stamp(span[0]))
             request.received += span[2]
             self.chunks_recovered += 1

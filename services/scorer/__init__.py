@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -82,31 +83,75 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
+REGISTRY_ENV = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_TIMEOUT": "10"}
+"""MLflow client defaults in the scorer (the environment wins): a registry look-up fails within ~20 s when the server is
+down instead of retrying for minutes (MLflow's 7 retries with doubling back-off), so that the alias is looked at
+again soon after the server returns."""
+
+
 class _Model:
-    """The bundle in use and, for a registry alias, when to look again."""
+    """The bundle in use and, for a followed registry alias, a thread that looks at the alias.
+
+    The thread (:meth:`follow`) resolves the alias every ``--follow-alias`` seconds and, when it moved, loads the new
+    version; the scoring loop takes it at its next turn (:meth:`moved`). The loop never waits on MLflow: while the
+    server cannot be reached (down, restarting) the thread logs it once, keeps the model in use, and tries again.
+    """
 
     def __init__(self, args: argparse.Namespace) -> None:
         from hydrowatch.training.bundle import load_bundle
 
         self.args = args
         self.bundle: ModelBundle = load_bundle(args.model, args.tracking_uri)
-        self.next_check = time.monotonic() + args.follow_alias
+        self._loaded = self.bundle.version
+        self._next: ModelBundle | None = None
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def following(self) -> bool:
+        return self.args.follow_alias > 0 and "@" in str(self.args.model)
+
+    def follow(self, stop: threading.Event) -> None:
+        """Start following the alias until ``stop`` (nothing without ``--follow-alias`` or an alias)."""
+        if self.following:
+            self._thread = threading.Thread(target=self._follow, args=(stop,), name="follow-alias", daemon=True)
+            self._thread.start()
+
+    def join(self) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout=30)
 
     def moved(self) -> bool:
-        """True when the followed alias now points at another version (the new bundle is loaded)."""
-        a = self.args
-        if a.follow_alias <= 0 or "@" not in str(a.model) or time.monotonic() < self.next_check:
+        """True when the followed alias moved and its new version is now :attr:`bundle`."""
+        with self._lock:
+            found, self._next = self._next, None
+        if found is None:
             return False
-        self.next_check = time.monotonic() + a.follow_alias
+        self.bundle = found
+        event(log, "model switched", model=self.args.model, version=found.version)
+        return True
+
+    def _follow(self, stop: threading.Event) -> None:
         from hydrowatch.training.bundle import load_bundle
         from hydrowatch.training.tracking import parse_model_uri, resolve_version
 
-        version, _ = resolve_version(a.model, a.tracking_uri)
-        if f"{parse_model_uri(a.model)[0]}/v{version}" == self.bundle.version:
-            return False
-        self.bundle = load_bundle(a.model, a.tracking_uri)
-        event(log, "model switched", model=a.model, version=self.bundle.version)
-        return True
+        a, name, down = self.args, parse_model_uri(self.args.model)[0], False
+        while not stop.wait(a.follow_alias):
+            try:
+                version, _ = resolve_version(a.model, a.tracking_uri)
+                if f"{name}/v{version}" != self._loaded:
+                    found = load_bundle(a.model, a.tracking_uri)
+                    with self._lock:
+                        self._next, self._loaded = found, found.version
+            except Exception as exc:  # noqa: BLE001 - any failure to reach or read the registry: keep scoring
+                if not down:
+                    event(log, "registry unreachable; scoring on with the model in use", logging.WARNING,
+                          model=a.model, version=self._loaded, reason=str(exc).split("\n")[0][:300])
+                down = True
+                continue
+            if down:
+                event(log, "registry reachable again", model=a.model, version=self._loaded)
+                down = False
 
 
 class _Units:
@@ -156,14 +201,20 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
 
 def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | None:
     """The model to start with. A registry alias followed with ``--follow-alias`` that does not exist yet (a trainer
-    started beside the scorer has not registered its first model) is looked for again every ``--follow-alias``
-    seconds, logged once; None when ``stop`` comes first. Anything else that cannot be loaded raises."""
+    started beside the scorer has not registered its first model) or cannot be read (the server is not up) is looked
+    for again every ``--follow-alias`` seconds, logged once; None when ``stop`` comes first. Anything else that cannot
+    be loaded raises."""
     waiting = args.follow_alias > 0 and str(args.model).startswith("models:/")
     logged = False
+    unreachable: tuple[type[Exception], ...] = (DataError,)
+    if waiting:  # a server not up yet: MLflow's own errors, or the network's (requests' are OSErrors)
+        from mlflow.exceptions import MlflowException
+
+        unreachable = (DataError, OSError, MlflowException)
     while True:
         try:
             return _Model(args)
-        except DataError as exc:
+        except unreachable as exc:
             if not waiting:
                 raise
             if not logged:
@@ -175,9 +226,12 @@ def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | No
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Score until ``stop`` (or ``--seconds``); returns 0."""
+    for name, value in REGISTRY_ENV.items():
+        os.environ.setdefault(name, value)
     model = _first_model(args, stop)
     if model is None:
         return 0
+    model.follow(stop)
     units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)
     freeze_heap()
@@ -210,6 +264,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             release(shard)
             reporter.stop()
             publisher.close()
+            stop.set()  # ends the alias follower (a --seconds run ends without a signal)
+            model.join()
     if subscriber.undecodable_total:
         event(log, "undecodable messages skipped", logging.WARNING, count=subscriber.undecodable_total)
     event(log, "scorer stopped", verdicts=counters["verdicts"], machines=len(scorer.machines), samples=scorer.samples)

@@ -35,7 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _train_once(args: argparse.Namespace, settings: list, failure: list[DataError]) -> None:
-    """One training of every method (runs in a worker thread, :func:`run`); a DataError is handed back."""
+    """One training of every method (runs in a worker thread, :func:`run`); a DataError is handed back, and so is a
+    tracking server that cannot be reached once MLflow's own retries (~2 min) are spent, as a DataError: the next
+    training registers again."""
+    from mlflow.exceptions import MlflowException
+
     from hydrowatch.training.pipeline import train_each
 
     try:
@@ -46,6 +50,8 @@ def _train_once(args: argparse.Namespace, settings: list, failure: list[DataErro
             print(json.dumps(summary), flush=True)
     except DataError as exc:
         failure.append(exc)
+    except (OSError, MlflowException) as exc:  # requests' connection errors are OSErrors
+        failure.append(DataError(f"training not logged or registered in MLflow: {str(exc).splitlines()[0][:300]}"))
 
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
