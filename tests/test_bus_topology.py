@@ -12,8 +12,10 @@ measures it).
 
 from __future__ import annotations
 
+import json
 import os
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -68,7 +70,7 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
     with Topology(tmp_path, settings) as topology:
         with VerdictLog(topology.client_settings(), settings.fleet) as heard:
             # the trainer retries every few seconds until the recorders have closed files, while the server starts
-            for host in ("record-0", "record-1", "plant", "trainer"):
+            for host in ("record-0", "record-1", "web", "plant", "trainer"):
                 topology.start(host)
             ready = topology.tracking.wait_ready(timeout=120)
             for host in ("score-0", "score-1"):
@@ -99,6 +101,8 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
             newer = f"{settings.model_name}/v{latest + 1}"
             wait_until(lambda: judged_by(newer), 90, f"verdicts of {newer} on every machine", topology)
             second = time.monotonic() - began
+            with urllib.request.urlopen(f"{topology.web_url}/api/fleet", timeout=10) as reply:  # the fleet page
+                page = {row["machine"] for row in json.load(reply)["rows"]}
         versions, at, sources = registry(topology.tracking_uri, settings.model_name, settings.alias)
         codes = topology.close()
     print(f"{hosts}, {topology.backend}: MLflow ready in {ready:.1f} s, every machine judged by v1 at {first:.1f} s; "
@@ -110,6 +114,7 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
     assert any((tmp_path / "mlartifacts").rglob("bundle.json")) or any((tmp_path / "mlartifacts").rglob("*"))
     found = heard.by_machine()
     assert sorted(found) == machines, "every machine gets verdicts"
+    assert page == set(machines), page
     for machine, verdicts in found.items():
         versions_seen = [v.model_version for v in verdicts]
         # the alias moved: v1's verdicts, then newer ones, never back

@@ -30,12 +30,13 @@ from hydrowatch.testbed.postgres import PostgresCluster
 from hydrowatch.testbed.tracking_server import TrackingServer
 
 MODULES = {"router": "services.router", "plant": "services.plant", "record": "services.recorder",
-           "trainer": "services.trainer", "scorer": "services.scorer"}
+           "trainer": "services.trainer", "scorer": "services.scorer", "web": "services.web"}
 """``hydrowatch`` command → its service package (``python -m``)."""
-HOSTS = ("router", "mlflow", "plant", "record-0", "record-1", "trainer", "score-0", "score-1")
+HOSTS = ("router", "mlflow", "plant", "record-0", "record-1", "trainer", "score-0", "score-1", "web")
 """One host per process, named as compose.yaml's services (``mlflow`` also holds its PostgreSQL cluster)."""
 ROUTER_PORT = 7447
 MLFLOW_PORT = 5000
+WEB_PORT = 8050
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,11 @@ class Topology:
         return f"tcp/{self.network.hosts['router'].address}:{ROUTER_PORT}"
 
     @property
+    def web_url(self) -> str:
+        """The fleet page's address (the web service's host)."""
+        return f"http://{self.network.hosts['web'].address}:{WEB_PORT}"
+
+    @property
     def tracking_uri(self) -> str:
         return f"http://{self.network.hosts['mlflow'].address}:{MLFLOW_PORT}"
 
@@ -150,6 +156,8 @@ class Topology:
                                     "--out", str(self.work / "models" / "latest"), "--every", str(s.retrain),
                                     "--method", "parity", "--model-name", s.model_name, "--alias", s.alias,
                                     *tracking]),
+            "web": ("web", ["--fleet", s.fleet, "--host", self.network.hosts["web"].address, "--port", str(WEB_PORT),
+                            *bus]),
         }
         for i in range(2):
             found[f"record-{i}"] = ("record", ["--fleet", s.fleet, "--shard", f"{i}/2", "--out", str(self.recordings),
@@ -232,7 +240,7 @@ class Topology:
         """Stop every service with SIGTERM, in three waves each waited for (SIGKILL after ``grace_s``): the
         publishers and the trainer, then the subscribers (they drain what was published), then the router; then the
         MLflow server, PostgreSQL and the hosts. Returns each service's exit status."""
-        for wave in (("plant", "trainer"), ("score-0", "score-1", "record-0", "record-1"), ("router",)):
+        for wave in (("plant", "trainer"), ("score-0", "score-1", "record-0", "record-1", "web"), ("router",)):
             procs = [self.processes[h] for h in wave if h in self.processes]
             for proc in procs:
                 if proc.poll() is None:
