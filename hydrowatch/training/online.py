@@ -1,15 +1,20 @@
 """Online scoring of a fleet, chunk by chunk (river style: ``update`` feeds, nothing is re-read).
 
-Per machine the scorer keeps what the bundle's method needs (:mod:`hydrowatch.training.engines`):
-for the entropy method the reference models' stream states (delay lines or filter states,
-:class:`~hydrowatch.training.reference.StreamState`) and a :class:`~hydrowatch.health.streaming.MachineWindow`
-of prediction errors, whose closed windows' relative entropies go to the classifier and the
-open-set rule; all machines' segments of equal length are processed in one batched call, and all
-windows that close in one :meth:`OnlineScorer.update` are judged in one call. The parity method
-(the default) runs in :class:`~hydrowatch.training.parity_online.ParityStreams`: every machine's
-window is a row of one fleet-wide array, clean chunks are written with one vectorised scatter per
-update, and closed windows are judged as they close in batches of at most ``batch``, optionally
-pooled over the machine's last ``smoothing`` windows.
+:class:`OnlineScorer` is the one fleet driver of every health method: it asks the bundle's method
+for its streaming part (:meth:`HealthMethod.online <hydrowatch.methods.base.HealthMethod.online>`) and
+applies chunk hygiene, breaks, staggering, batching and the verdicts' times the same way for all:
+
+* a method that reads raw windows (parity, stats) gives a
+  :class:`~hydrowatch.methods.base.WindowJudge`, run by
+  :class:`~hydrowatch.training.window_fleet.WindowFleet`: every machine's window is a row of one
+  fleet-wide array, clean chunks are written with one vectorised scatter per update, and closed
+  windows are judged as they close in batches of at most ``batch`` (the parity judge optionally
+  pools each verdict over the machine's last ``smoothing`` windows);
+* a method whose values need a state per machine (the study's entropy method: the reference
+  models' delay lines or filter states, :class:`~hydrowatch.methods.entropy.reference.StreamState`)
+  gives a :class:`~hydrowatch.methods.base.StreamEngine`, run here machine by machine: all
+  machines' segments of equal length are processed in one batched call, and all windows that close
+  in one :meth:`OnlineScorer.update` are judged in one call.
 
 A stream breaks, and the window in progress is published as ``invalid`` with its reason instead of
 producing a wrong verdict, when a chunk
@@ -20,7 +25,7 @@ producing a wrong verdict, when a chunk
 * is irregular inside (sample spacing off 1/200 s).
 
 After a break the stream restarts: the reference models warm up again (``bundle.warmup`` samples,
-none for the parity method) and windows are counted from the first sample after the warm-up.
+none for the raw-window methods) and windows are counted from the first sample after the warm-up.
 """
 
 from __future__ import annotations
@@ -31,9 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from hydrowatch.condition.model import ConditionModel
-from hydrowatch.errors import ParameterError
-from hydrowatch.health.streaming import MachineWindow
+from hydrowatch.methods.base import HealthMethod, StreamEngine, refuse_smoothing
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.chunks import (
     DT,
@@ -49,17 +52,17 @@ from hydrowatch.training.chunks import (
     cut_short,
     plan_chunk,
 )
-from hydrowatch.training.engines import EntropyEngine, ParityEngine, engine_for
-from hydrowatch.training.parity_online import ParityStreams
-from hydrowatch.training.reference import StreamState
+from hydrowatch.training.window_fleet import WindowFleet
 
 __all__ = ["DT", "TOLERANCE", "Chunk", "ChunkBatch", "OnlineScorer", "WindowVerdict", "chunks_from_batches"]
 
 
 @dataclass
 class _Stream:
-    states: list[StreamState]
-    window: MachineWindow
+    states: Any
+    """The engine's per-machine state (:meth:`StreamEngine.new_states`)."""
+    window: Any
+    """The machine's window of values (:meth:`StreamEngine.new_window`)."""
     next_t: float | None = None
     start_t: float | None = None
     """Time of the first sample of the stream (warm-up included)."""
@@ -74,50 +77,48 @@ class _Stream:
 
 
 class OnlineScorer:
-    """Streaming verdicts for many machines from one model bundle.
+    """Streaming verdicts for many machines from one model bundle (module docstring).
 
     Parameters
     ----------
     bundle : ModelBundle
-        Either method's bundle.
+        Any method's bundle.
     keep : int, default 4
-        Closed windows each machine keeps (entropy method; only the unreported ones are read).
+        Closed windows each machine keeps (stream engines; only the unreported ones are read).
     smoothing : int, default 1
-        Parity method: valid windows of a machine whose evidence each verdict pools
-        (:class:`~hydrowatch.condition.stream.ConditionStream`; 1: each window alone). The entropy
-        method takes only 1.
+        Valid windows of a machine whose evidence each verdict pools, for a method that pools (parity,
+        :class:`~hydrowatch.condition.stream.ConditionStream`; 1: each window alone). Other methods take only 1.
     batch : int, default 64
-        Parity method: most windows judged in one call (bounds the work between verdicts).
+        Raw-window methods: most windows judged in one call (bounds the work between verdicts).
     stagger : bool, default False
-        Parity method: each machine's windows start at a phase of its own (``ParityStreams``), so
+        Raw-window methods: each machine's windows start at a phase of its own (:class:`WindowFleet`), so
         machines started together do not close their windows in the same update.
-    unit_model : callable, optional
-        Parity method: machine → its commissioned condition model or None (``ParityStreams``).
+    unit_method : callable, optional
+        Machine → its commissioned method (:attr:`ModelBundle.health_method` of its commissioning) or None.
     """
 
     def __init__(self, bundle: ModelBundle, *, keep: int = 4, smoothing: int = 1, batch: int = 64,
-                 stagger: bool = False, unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
+                 stagger: bool = False, unit_method: Callable[[str], HealthMethod | None] | None = None) -> None:
         self.bundle = bundle
         self.keep = keep
         self.smoothing = smoothing
         self._streams: dict[str, _Stream] = {}
         self._samples = 0
-        engine = engine_for(bundle, keep=keep)
-        self._columns = engine.columns
-        self._parity: ParityStreams | None = None
-        if isinstance(engine, ParityEngine):
-            self._parity = ParityStreams(engine, (len(bundle.kl_rows), len(bundle.states)),
-                                         smoothing=smoothing, batch=batch, stagger=stagger, unit_model=unit_model)
+        method = bundle.health_method
+        if smoothing != 1 and not method.pools:
+            refuse_smoothing(method.name, smoothing)
+        engine = method.online(keep=keep, smoothing=smoothing, unit_method=unit_method)
+        self._columns = list(engine.columns)
+        self._fleet: WindowFleet | None = None
+        if not isinstance(engine, StreamEngine):
+            self._fleet = WindowFleet(engine, batch=batch, stagger=stagger)
             return
-        self._engine: EntropyEngine = engine  # the per-machine path below is the entropy method's
-        if smoothing != 1:
-            raise ParameterError(f"smoothing must be 1 for an entropy bundle. Got {smoothing!r}; pooling windows is "
-                                 "the parity method's (train with --method parity).")
+        self._engine: StreamEngine = engine  # the per-machine path below
 
     @property
     def samples(self) -> int:
         """Samples fed so far, over every machine."""
-        return int(self._parity.samples) if self._parity is not None else self._samples
+        return int(self._fleet.samples) if self._fleet is not None else self._samples
 
     @property
     def columns(self) -> list[str]:
@@ -127,7 +128,7 @@ class OnlineScorer:
     @property
     def machines(self) -> list[str]:
         """Machines seen so far."""
-        return self._parity.machines if self._parity is not None else list(self._streams)
+        return self._fleet.machines if self._fleet is not None else list(self._streams)
 
     def _new_stream(self) -> _Stream:
         return _Stream(self._engine.new_states(), self._engine.new_window())
@@ -203,11 +204,11 @@ class OnlineScorer:
     def update(self, chunks: Sequence[Chunk]) -> list[WindowVerdict]:
         """Feed chunks of any machines (in arrival order); returns the verdicts of the windows they close.
 
-        ``chunks`` may be a :class:`ChunkBatch` (:func:`chunks_from_batches`), which the parity
-        method reads without per-chunk Python work.
+        ``chunks`` may be a :class:`ChunkBatch` (:func:`chunks_from_batches`), which the raw-window
+        methods read without per-chunk Python work.
         """
-        if self._parity is not None:
-            return self._parity.update(chunks)
+        if self._fleet is not None:
+            return self._fleet.update(chunks)
         plans = self._plans(chunks)
         out: list[WindowVerdict] = []
         closed: list[tuple[str, Any, float]] = []

@@ -1,9 +1,10 @@
-"""The parity method online for a whole fleet: one array row per machine, windows judged as they close.
+"""The fleet driver of methods that read raw windows: one array row per machine, windows judged as they close.
 
-:class:`ParityStreams` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for a parity
-bundle. Per machine it keeps a row of one fleet-wide array of raw samples (the window in progress,
-``window × n_columns`` floats) and a few counters in fleet-wide vectors, so an update of 1000
-machines' clean chunks is a handful of NumPy operations, not 1000 Python objects:
+:class:`WindowFleet` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for a method whose
+streaming part is a :class:`~hydrowatch.methods.base.WindowJudge` (parity, stats). Per machine it keeps
+a row of one fleet-wide array of raw samples (the window in progress, ``window × n_columns`` floats)
+and a few counters in fleet-wide vectors, so an update of 1000 machines' clean chunks is a handful of
+NumPy operations, not 1000 Python objects:
 
 1. the chunks (a :class:`~hydrowatch.training.chunks.ChunkBatch`) are checked all at once: a
    machine's only chunk in the update, every column present (or defaulted), finite, regular and
@@ -12,30 +13,24 @@ machines' clean chunks is a handful of NumPy operations, not 1000 Python objects
 2. anything else (a gap, NaN, a late chunk, several chunks of one machine) goes through
    :func:`~hydrowatch.training.chunks.plan_chunk` machine by machine, as before: a break makes the
    window in progress ``invalid`` with its reason and restarts the machine's window;
-3. windows that close are copied out and judged by the condition model in batches of at most
-   ``batch`` windows (one :meth:`ConditionFeatures.transform_evidence` call per batch): the verdict
-   from the window alone (``smoothing`` 1) or pooled over the machine's last ``smoothing`` valid
-   windows (one :class:`~hydrowatch.condition.stream.ConditionStream` per machine, judged for all
-   machines in one :func:`~hydrowatch.condition.stream.judge_streams` call). A break does not flush
-   the pooled evidence (as :class:`ConditionStream` skips invalid windows).
+3. windows that close are copied out and handed to the method's judge in batches of at most
+   ``batch`` windows (the parity judge pools a machine's recent windows when asked,
+   :mod:`hydrowatch.methods.parity.online`).
 
 With ``stagger`` each machine's windows start at a phase of its own after its stream (re)starts,
 so a fleet started in one instant does not close every window in the same update.
-
-Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
 """
 
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from hydrowatch.condition.model import ConditionModel
-from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
+from hydrowatch.methods.base import WindowJudge
 from hydrowatch.training.chunks import (
     DT,
     Break,
@@ -46,7 +41,6 @@ from hydrowatch.training.chunks import (
     cut_short,
     plan_chunk,
 )
-from hydrowatch.training.engines import ParityEngine
 
 
 @dataclass
@@ -59,17 +53,13 @@ class _Closed:
     samples: np.ndarray
 
 
-class ParityStreams:
-    """Raw windows of many machines, judged by a parity bundle's condition model as they close (module docstring).
+class WindowFleet:
+    """Raw windows of many machines, handed to a method's judge as they close (module docstring).
 
     Parameters
     ----------
-    engine : ParityEngine
-        The bundle's model, columns, defaults, window and hop.
-    shape : (int, int)
-        (n_relations, n_states) of each window's ``kl`` scores.
-    smoothing : int, default 1
-        Valid windows of a machine pooled in each verdict (1: each window alone).
+    judge : WindowJudge
+        The method's streaming part: its columns, defaults, window, hop and ``judge``.
     batch : int, default 64
         Most windows judged in one call.
     stagger : bool, default False
@@ -78,26 +68,16 @@ class ParityStreams:
         close their windows spread over the hop instead of all in one update (the judging work of
         the whole fleet at once), at the price of up to one hop of samples unjudged after each
         (re)start. False: windows start at the stream's first sample (as batch scoring does).
-    unit_model : callable, optional
-        Machine (``fleet/machine``) → its commissioned :class:`ConditionModel`, or None for the
-        fleet model (:class:`hydrowatch.training.commissioning.Commissionings`). A commissioned
-        model shares the fleet model's states, decision and open-set rule, so pooling and judging
-        stay one call; only the features (the unit's parameters) differ.
     """
 
-    def __init__(self, engine: ParityEngine, shape: tuple[int, int], *, smoothing: int = 1, batch: int = 64,
-                 stagger: bool = False, unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
-        if int(smoothing) != smoothing or smoothing < 1:
-            raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
+    def __init__(self, judge: WindowJudge, *, batch: int = 64, stagger: bool = False) -> None:
         if int(batch) != batch or batch < 1:
             raise ParameterError(f"batch must be an integer >= 1. Got {batch!r}; 64 is the default.")
-        self.model, self.columns, self.defaults = engine.model, list(engine.columns), dict(engine.defaults)
-        self.window, self.hop, self.shape = engine.window, engine.hop, shape
-        self.smoothing, self.batch, self.stagger = int(smoothing), int(batch), bool(stagger)
-        self.unit_model = unit_model
+        self.judge, self.columns, self.defaults = judge, list(judge.columns), dict(judge.defaults)
+        self.window, self.hop = judge.window, judge.hop
+        self.batch, self.stagger = int(batch), bool(stagger)
         self._slot: dict[str, int] = {}
         self._names: list[str] = []
-        self._pools: list[ConditionStream | None] = []
         self._buffer = np.empty((0, self.window, len(self.columns)))
         self._fill = np.zeros(0, dtype=np.int64)
         """Samples in each machine's window in progress."""
@@ -130,7 +110,6 @@ class ParityStreams:
             if m in missing and m not in slot:
                 slot[m] = len(self._names)
                 self._names.append(m)
-                self._pools.append(None)
         n = len(self._names)
         if n > self._fill.size:
             cap = n if self._fill.size == 0 else max(n, 2 * self._fill.size)
@@ -251,46 +230,13 @@ class ParityStreams:
         self._next_t[slot] = np.nan if next_t is None else next_t
 
     # -- judging ------------------------------------------------------------------------------------
-    def _evidence(self, raw: np.ndarray, machines: list[str]) -> np.ndarray:
-        """``transform_evidence`` rows of closed windows, each by its machine's model (commissioned or fleet)."""
-        if self.unit_model is None:
-            return self.model.features_.transform_evidence(raw)
-        models = [self.unit_model(m) or self.model for m in machines]
-        rows: np.ndarray | None = None
-        for model in {id(m): m for m in models}.values():
-            mine = np.array([m is model for m in models])
-            part = model.features_.transform_evidence(raw[mine])
-            rows = np.empty((raw.shape[0], part.shape[1])) if rows is None else rows
-            rows[mine] = part
-        assert rows is not None
-        return rows
-
     def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:
         """Verdicts and ``kl`` scores of closed windows, ``batch`` windows per call, in closing order."""
         out = []
-        features = self.model.features_
-        width = 2 * len(features.feature_names_)
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
-            raw = np.stack([c.samples for c in part])
-            rows = self._evidence(raw, [self._names[c.slot] for c in part])
-            reasons = features.window_reasons(raw)
-            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
-            for c, row, why in zip(part, rows, reasons):
-                alone = (row[:width], row[:width], row[:width], 1)
-                if self.smoothing == 1:
-                    evidence.append(alone)
-                    continue
-                pool = self._pools[c.slot]
-                if pool is None:
-                    pool = self._pools[c.slot] = ConditionStream(self.model, n_windows=self.smoothing)
-                pool.update_features(row)
-                got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
-                evidence.append(got if got is not None else alone)
-            verdicts = judge_streams(self.model, self.smoothing, evidence, reasons)
-            band = rows[:, : width // 2]
-            for c, v, s in zip(part, verdicts, band):
-                first = c.start
-                out.append(WindowVerdict(self._names[c.slot], c.t0 + first * DT, c.t0 + (first + self.window) * DT, v,
-                                         s.reshape(self.shape)))
+            judged = self.judge.judge(np.stack([c.samples for c in part]), [self._names[c.slot] for c in part])
+            for c, (v, s) in zip(part, judged):
+                out.append(WindowVerdict(self._names[c.slot], c.t0 + c.start * DT, c.t0 + (c.start + self.window) * DT,
+                                         v, s))
         return out
