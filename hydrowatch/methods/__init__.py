@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 REGISTRY: dict[str, str] = {
     "parity": "hydrowatch.methods.parity:ParityMethod",
     "entropy": "hydrowatch.methods.entropy:EntropyMethod",
+    "stats": "hydrowatch.methods.stats:StatsMethod",
 }
 """Method name → ``module:Class``. The first is the default method."""
 

@@ -104,6 +104,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--method", choices=(*METHODS, *GROUPS), default=DEFAULT_CLI_METHOD,
                    help=f"health method: {DEFAULT_METHOD} (component relations, the verdicts hydrowatch "
                         "recommends), entropy (the study's reference models + relative entropies, with --reference), "
+                        f"{''.join(f'{m}, ' for m in METHODS[2:])}"
                         "both (entropy, then parity), all (default: entropy with Box-Jenkins, entropy with NARX, "
                         "then parity; three runs to compare in MLflow)")
     g.add_argument("--reference", choices=("narx", "bj"), default="narx",
