@@ -9,11 +9,11 @@ driver (:class:`~hydrowatch.training.online.OnlineScorer`) its streaming part, o
 
 * a :class:`WindowJudge`: the method reads raw windows of its channels, the driver cuts them (every
   machine a row of one fleet-wide array) and hands over closed windows in batches;
-* a :class:`StreamEngine`: the method turns each machine's samples into values with a state of its
-  own (delay lines of reference models, warm-up), windows of those values are judged.
+* a :class:`StreamEngine`: a judge whose windows hold values the method computes from each machine's
+  samples with a state of its own (delay lines of reference models, warm-up).
 
-Chunk hygiene (gaps, NaN, late chunks), breaks, staggering and the wire format of verdicts are the
-driver's, the same for every method.
+Chunk hygiene (gaps, NaN, late chunks), breaks, staggering, batching and the verdicts' times are the
+driver's (:class:`~hydrowatch.training.window_fleet.WindowFleet`), the same for every method.
 """
 
 from __future__ import annotations
@@ -119,32 +119,24 @@ class WindowJudge(Protocol):
 
 
 @runtime_checkable
-class StreamEngine(Protocol):
-    """Streaming part of a method whose values need a state per machine (see the entropy method)."""
+class StreamEngine(WindowJudge, Protocol):
+    """A :class:`WindowJudge` whose windows hold values computed per machine with a state of its own (the entropy
+    method's prediction errors): the driver turns every clean segment into values first, and starts the windows at
+    the first sample where every value is finite (the warm-up), again after each break.
 
-    columns: list[str]
-    defaults: dict[str, float]
-    hop: int
+    ``width`` is the number of values per sample; ``staggers`` whether the driver may stagger the windows.
+    """
+
+    width: int
+    staggers: bool
 
     def new_states(self) -> Any:
         """A machine's fresh state (after a break: warm-up again)."""
         ...
 
-    def new_window(self) -> Any:
-        """A machine's fresh window of values (``update``, ``n_windows``)."""
-        ...
-
     def values(self, x: np.ndarray, states: Sequence[Any]) -> np.ndarray:
         """Values (M, n, width) of M machines' segments x (M, n, n_columns), NaN while warming up; updates
         ``states``."""
-        ...
-
-    def collect(self, window: Any, reported: int) -> list[Any]:
-        """Windows closed since ``reported`` (each with ``start``, ``stop`` in samples)."""
-        ...
-
-    def judge(self, results: Sequence[Any]) -> list[tuple[Verdict, np.ndarray]]:
-        """Verdicts and ``kl`` scores of closed windows, batched."""
         ...
 
 
@@ -250,10 +242,10 @@ class HealthMethod:
         """Every window of a recording (after the warm-up), judged; ``smoothing`` > 1 only if :attr:`pools`."""
         raise NotImplementedError
 
-    def online(self, *, keep: int = 4, smoothing: int = 1,
-               unit_method: Callable[[str], HealthMethod | None] | None = None) -> WindowJudge | StreamEngine:
-        """The streaming part for the fleet driver; ``keep``: closed windows a :class:`StreamEngine` keeps per
-        machine; ``unit_method``: machine → its commissioned method, or None for this one."""
+    def online(self, *, smoothing: int = 1,
+               unit_method: Callable[[str], HealthMethod | None] | None = None) -> WindowJudge:
+        """The streaming part for the fleet driver (a :class:`StreamEngine` when values need a state per machine);
+        ``unit_method``: machine → its commissioned method, or None for this one."""
         raise NotImplementedError
 
     def commission(self, recordings: list[Recording]) -> tuple[Self, dict[str, Any]]:

@@ -1,10 +1,13 @@
-"""The fleet driver of methods that read raw windows: one array row per machine, windows judged as they close.
+"""The online fleet driver of every health method: one array row per machine, windows judged as they close.
 
-:class:`WindowFleet` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for a method whose
-streaming part is a :class:`~hydrowatch.methods.base.WindowJudge` (parity, stats). Per machine it keeps
-a row of one fleet-wide array of raw samples (the window in progress, ``window × n_columns`` floats)
-and a few counters in fleet-wide vectors, so an update of 1000 machines' clean chunks is a handful of
-NumPy operations, not 1000 Python objects:
+:class:`WindowFleet` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for the bundle's
+method, whose streaming part is a :class:`~hydrowatch.methods.base.WindowJudge` (parity, stats: raw
+windows) or a :class:`~hydrowatch.methods.base.StreamEngine` (entropy: every clean segment is first
+turned into values, the reference models' prediction errors, batched over machines with each
+machine's state; the windows start where the values are finite, after the warm-up). Per machine it
+keeps a row of one fleet-wide array (the window in progress, ``window × width`` floats) and a few
+counters in fleet-wide vectors, so an update of 1000 machines' clean chunks is a handful of NumPy
+operations, not 1000 Python objects:
 
 1. the chunks (a :class:`~hydrowatch.training.chunks.ChunkBatch`) are checked all at once: a
    machine's only chunk in the update, every column present (or defaulted), finite, regular and
@@ -18,7 +21,8 @@ NumPy operations, not 1000 Python objects:
    :mod:`hydrowatch.methods.parity.online`).
 
 With ``stagger`` each machine's windows start at a phase of its own after its stream (re)starts,
-so a fleet started in one instant does not close every window in the same update.
+so a fleet started in one instant does not close every window in the same update (not for a
+stream engine whose ``staggers`` is False: the entropy method's windows start after its warm-up).
 """
 
 from __future__ import annotations
@@ -26,11 +30,12 @@ from __future__ import annotations
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from hydrowatch.errors import ParameterError
-from hydrowatch.methods.base import WindowJudge
+from hydrowatch.methods.base import StreamEngine, WindowJudge
 from hydrowatch.training.chunks import (
     DT,
     Break,
@@ -58,8 +63,9 @@ class WindowFleet:
 
     Parameters
     ----------
-    judge : WindowJudge
-        The method's streaming part: its columns, defaults, window, hop and ``judge``.
+    judge : WindowJudge or StreamEngine
+        The method's streaming part: its columns, defaults, window, hop and ``judge`` (and, for a stream
+        engine, ``width``, ``new_states`` and ``values``).
     batch : int, default 64
         Most windows judged in one call.
     stagger : bool, default False
@@ -75,10 +81,15 @@ class WindowFleet:
             raise ParameterError(f"batch must be an integer >= 1. Got {batch!r}; 64 is the default.")
         self.judge, self.columns, self.defaults = judge, list(judge.columns), dict(judge.defaults)
         self.window, self.hop = judge.window, judge.hop
-        self.batch, self.stagger = int(batch), bool(stagger)
+        self.engine = judge if isinstance(judge, StreamEngine) else None
+        self.batch = int(batch)
+        self.stagger = bool(stagger) and (self.engine is None or bool(self.engine.staggers))
+        width = len(self.columns) if self.engine is None else int(self.engine.width)
         self._slot: dict[str, int] = {}
         self._names: list[str] = []
-        self._buffer = np.empty((0, self.window, len(self.columns)))
+        self._states: list[Any] = []
+        """Each machine's stream-engine state (empty without an engine)."""
+        self._buffer = np.empty((0, self.window, width))
         self._fill = np.zeros(0, dtype=np.int64)
         """Samples in each machine's window in progress."""
         self._skip = np.zeros(0, dtype=np.int64)
@@ -93,6 +104,10 @@ class WindowFleet:
         """Time of the first sample since the stream (re)started, s (NaN: none yet)."""
         self._next_t = np.zeros(0)
         """When each machine's next sample is expected, s (NaN: anything goes)."""
+        self._seen = np.zeros(0, dtype=np.int64)
+        """Samples received since the stream (re)started, the warm-up included."""
+        self._start_t = np.zeros(0)
+        """Time of the first sample received since the stream (re)started, s (NaN: none yet)."""
         self.samples = 0
         """Samples fed so far, over every machine."""
 
@@ -110,28 +125,56 @@ class WindowFleet:
             if m in missing and m not in slot:
                 slot[m] = len(self._names)
                 self._names.append(m)
+                if self.engine is not None:
+                    self._states.append(self.engine.new_states())
         n = len(self._names)
         if n > self._fill.size:
             cap = n if self._fill.size == 0 else max(n, 2 * self._fill.size)
             grow = cap - self._fill.size
             self._buffer = np.concatenate([self._buffer, np.empty((grow, *self._buffer.shape[1:]))])
-            self._fill, self._skip, self._fed, self._count, self._phase = (
+            self._fill, self._skip, self._fed, self._count, self._phase, self._seen = (
                 np.concatenate([a, np.zeros(grow, dtype=np.int64)])
-                for a in (self._fill, self._skip, self._fed, self._count, self._phase))
-            self._t0, self._next_t = (np.concatenate([a, np.full(grow, np.nan)]) for a in (self._t0, self._next_t))
+                for a in (self._fill, self._skip, self._fed, self._count, self._phase, self._seen))
+            self._t0, self._next_t, self._start_t = (np.concatenate([a, np.full(grow, np.nan)])
+                                                     for a in (self._t0, self._next_t, self._start_t))
         if missing and self.stagger:
             for s in range(n - len(missing), n):
                 self._phase[s] = self._skip[s] = zlib.crc32(self._names[s].encode()) % self.hop
         return np.fromiter(map(slot.__getitem__, machines), dtype=np.int64, count=len(machines))
 
     def _restart(self, slot: int) -> None:
-        self._fill[slot] = self._fed[slot] = self._count[slot] = 0
+        self._fill[slot] = self._fed[slot] = self._count[slot] = self._seen[slot] = 0
         self._skip[slot] = self._phase[slot]
-        self._t0[slot] = np.nan
+        self._t0[slot] = self._start_t[slot] = np.nan
+        if self.engine is not None:
+            self._states[slot] = self.engine.new_states()
 
     # -- feeding ------------------------------------------------------------------------------------
+    def _feed(self, slots: np.ndarray, t: np.ndarray, x: np.ndarray, closed: list[_Closed]) -> None:
+        """Feed clean samples t (m, n), x (m, n, n_columns) of m distinct machines: as they are, or through the
+        stream engine's values, each machine's window starting at its first finite value after a (re)start."""
+        self._seen[slots] += t.shape[1]
+        first = np.isnan(self._start_t[slots])
+        self._start_t[slots[first]] = t[first, 0]
+        if self.engine is None:
+            self._write(slots, t, x, closed)
+            return
+        values = self.engine.values(x, [self._states[s] for s in slots.tolist()])
+        warming = self._fed[slots] == 0
+        if not warming.any():
+            self._write(slots, t, values, closed)
+            return
+        self._next_t[slots] = t[:, -1] + DT
+        if not warming.all():
+            self._write(slots[~warming], t[~warming], values[~warming], closed)
+        for i in np.flatnonzero(warming).tolist():
+            ready = np.flatnonzero(np.all(np.isfinite(values[i]), axis=1))
+            if ready.size:
+                r = int(ready[0])
+                self._write(slots[i:i + 1], t[i:i + 1, r:], values[i:i + 1, r:], closed)
+
     def _write(self, slots: np.ndarray, t: np.ndarray, x: np.ndarray, closed: list[_Closed]) -> None:
-        """Feed clean samples t (m, n), x (m, n, n_columns) of m distinct machines; closed windows go to ``closed``."""
+        """Write samples t (m, n), x (m, n, width) of m distinct machines; closed windows go to ``closed``."""
         m, n = t.shape
         fresh = self._fed[slots] == 0
         self._t0[slots[fresh]] = t[fresh, 0]
@@ -203,8 +246,8 @@ class WindowFleet:
         for n in np.unique(lengths[clean]).tolist():
             group = clean[lengths[clean] == n]
             rows = (batch.offsets[group][:, None] + np.arange(n)).reshape(-1)
-            self._write(slots[group], batch.t[rows].reshape(-1, n),
-                        self._matrix(batch, rows).reshape(group.size, n, -1), closed)
+            self._feed(slots[group], batch.t[rows].reshape(-1, n),
+                       self._matrix(batch, rows).reshape(group.size, n, -1), closed)
         for i in rest.tolist():
             self._plan(batch, int(i), int(slots[i]), closed, out)
         return out + self._judge(closed)
@@ -218,15 +261,18 @@ class WindowFleet:
                                  None if np.isnan(expected) else float(expected))
         for op in ops:
             if isinstance(op, Break):
-                begun = int(self._phase[slot] + self._count[slot] * self.hop)
-                invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
+                if self._fed[slot]:  # the window in progress began at its place after the (re)start
+                    begun = int(self._phase[slot] + self._count[slot] * self.hop)
+                    invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
+                else:  # still warming up: the window would have begun with the stream
+                    invalid = cut_short(self._names[slot], 0, int(self._seen[slot]), float(self._start_t[slot]), op)
                 if invalid is not None:
                     out.append(invalid)
                 self._restart(slot)
             else:
                 one = np.array([slot])
                 if op.t.size:
-                    self._write(one, op.t[None], op.x[None], closed)
+                    self._feed(one, op.t[None], op.x[None], closed)
         self._next_t[slot] = np.nan if next_t is None else next_t
 
     # -- judging ------------------------------------------------------------------------------------

@@ -131,10 +131,10 @@ class EntropyMethod(HealthMethod):
         starts, verdicts = self.health.score(errors)
         return OfflineScores(starts, verdicts, self.health.features_.window_entropies(errors))
 
-    def online(self, *, keep: int = 4, smoothing: int = 1,
+    def online(self, *, smoothing: int = 1,
                unit_method: Callable[[str], HealthMethod | None] | None = None) -> EntropyEngine:
-        """:class:`~.online.EntropyEngine` (each machine's reference-model states and window of errors)."""
-        return EntropyEngine(list(self.references.values()), self.health, self.sensors, keep=keep)
+        """:class:`~.online.EntropyEngine` (each machine's reference-model states; windows of their errors)."""
+        return EntropyEngine(list(self.references.values()), self.health, self.sensors)
 
     def commission(self, recordings: list[Recording]) -> tuple[EntropyMethod, dict[str, Any]]:
         """Refused: the base distributions would need the unit's own fault recordings."""

@@ -1,21 +1,24 @@
 """The study's method online: one-step prediction errors per machine, windows of them judged in batches.
 
-The fleet driver (:class:`~hydrowatch.training.online.OnlineScorer`) cuts chunks into clean segments
-and handles breaks; :class:`EntropyEngine` turns the segments into the reference models' one-step
-prediction errors (Eq. 5.1), batched over machines, fed to a
-:class:`~hydrowatch.health.streaming.MachineWindow` whose closed windows carry relative entropies
-(Eq. 5.3), judged by the classifier and the open-set rule.
+The fleet driver (:class:`~hydrowatch.training.window_fleet.WindowFleet`) cuts chunks into clean
+segments and handles breaks; :meth:`EntropyEngine.values` turns each machine's segments into the
+reference models' one-step prediction errors (Eq. 5.1), batched over machines, with each machine's
+delay lines or filter states (:class:`~hydrowatch.methods.entropy.reference.StreamState`, NaN while
+warming up: the driver starts the windows at the first sample where every sensor has an error);
+:meth:`EntropyEngine.judge` gives each closed window of errors its relative entropies (Eq. 5.3,
+:func:`~hydrowatch.health.streaming.closed_window`, as the batch path) and the classifier's and
+open-set rule's verdict.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 
 from hydrowatch.health.model import HealthModel
-from hydrowatch.health.streaming import MachineWindow, WindowResult
+from hydrowatch.health.streaming import closed_window
 from hydrowatch.health.verdict import judge
 from hydrowatch.methods.entropy.reference import SensorReference, StreamState
 from hydrowatch.recording import INPUT
@@ -23,24 +26,33 @@ from hydrowatch.verdict import Verdict
 
 
 class EntropyEngine:
-    """The study's method online (module docstring); ``keep`` closed windows per machine."""
+    """The study's method online (module docstring): a :class:`~hydrowatch.methods.base.StreamEngine`.
 
-    def __init__(self, references: Sequence[SensorReference], health: HealthModel, sensors: Sequence[str], *,
-                 keep: int = 4) -> None:
+    Attributes
+    ----------
+    columns : list of str
+        The command, then the sensors (chunk columns read).
+    width : int
+        Values per sample: one prediction error per sensor.
+    window, hop : int
+        Samples per window and between window starts (after the warm-up).
+    staggers : bool
+        False: windows start at the first sample after the warm-up (never staggered).
+    """
+
+    staggers: ClassVar[bool] = False
+
+    def __init__(self, references: Sequence[SensorReference], health: HealthModel, sensors: Sequence[str]) -> None:
         self.health = health
         self.references = list(references)
-        self.keep = keep
         self.columns = [INPUT, *sensors]
         self.defaults: dict[str, float] = {}
-        self.hop = int(health.features_.hop)
+        self.width = len(self.references)
+        self.window, self.hop = int(health.features_.window), int(health.features_.hop)
 
     def new_states(self) -> list[StreamState]:
         """Fresh stream states of the reference models (warm-up again)."""
         return [r.initial_state() for r in self.references]
-
-    def new_window(self) -> MachineWindow:
-        """A fresh window of prediction errors."""
-        return MachineWindow(self.health.features_, keep=self.keep)
 
     def values(self, x: np.ndarray, states: Sequence[list[StreamState]]) -> np.ndarray:
         """Prediction errors of M machines' segments x (M, n, 1 + n_sensors) → (M, n, n_sensors); updates ``states``."""
@@ -52,12 +64,11 @@ class EntropyEngine:
             errors.append(e)
         return np.stack(errors, axis=2)
 
-    def collect(self, window: MachineWindow, reported: int) -> list[WindowResult]:
-        """Windows closed since ``reported``."""
-        return window.since(reported)
-
-    def judge(self, results: Sequence[Any]) -> list[tuple[Verdict, np.ndarray]]:
-        """Verdicts and relative entropies (n_sensors, n_states) of closed windows, batched."""
-        features = np.stack([r.features for r in results])
-        verdicts = judge(features, self.health.classifier_, self.health.open_set_, [r.reason for r in results])
-        return [(v, r.entropies) for v, r in zip(verdicts, results)]
+    def judge(self, raw: np.ndarray, machines: Sequence[str]) -> list[tuple[Verdict, np.ndarray]]:
+        """Verdicts and relative entropies (n_sensors, n_states) of closed windows of errors (m, window, n_sensors)."""
+        features = self.health.features_
+        sensors = list(range(self.width))
+        closed = [closed_window(features, ordered, sensors) for ordered in raw.transpose(0, 2, 1).copy()]
+        verdicts = judge(np.stack([e.ravel() for e, _ in closed]), self.health.classifier_, self.health.open_set_,
+                         [why for _, why in closed])
+        return [(v, e) for v, (e, _) in zip(verdicts, closed)]

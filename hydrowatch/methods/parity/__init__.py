@@ -115,7 +115,7 @@ class ParityMethod(HealthMethod):
         return OfflineScores(starts, verdicts, scores.reshape(scores.shape[0], len(self.kl_rows), len(self.states)),
                              features_degradation(model.features_, raw, estimated=(valid, estimates)))
 
-    def online(self, *, keep: int = 4, smoothing: int = 1,
+    def online(self, *, smoothing: int = 1,
                unit_method: Callable[[str], HealthMethod | None] | None = None) -> ParityJudge:
         """:class:`~.online.ParityJudge`; ``unit_method`` gives a machine's commissioned parity method."""
         unit_model = None if unit_method is None else (lambda machine: _model_of(unit_method(machine)))

@@ -137,7 +137,7 @@ class StatsMethod(HealthMethod):
         verdicts, kl = self._judge(window_statistics(recording_windows(recording, self.channels, self.window)))
         return OfflineScores(window_starts(len(recording), self.window, self.window), verdicts, kl)
 
-    def online(self, *, keep: int = 4, smoothing: int = 1,
+    def online(self, *, smoothing: int = 1,
                unit_method: Callable[[str], HealthMethod | None] | None = None) -> _Judge:
         """A :class:`~hydrowatch.methods.base.WindowJudge` of raw windows of :attr:`channels`."""
         return _Judge(self)
