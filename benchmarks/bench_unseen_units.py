@@ -75,7 +75,7 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     reasons = model.features_.window_reasons(windows)
     ratios = rows[:, : 2 * len(model.features_.feature_names_)]
     out = {1: model.judge_evidence(ratios, ratios, reasons)}
-    layout = model.features_.evidence_layout()
+    layout = model.features_.layout_for(windows)
     for n in POOLS[1:]:
         out[n] = model.judge_pooled(*trailing_evidence(rows, n, layout), ratios, reasons, pooled_windows(rows, n))
     return out

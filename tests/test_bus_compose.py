@@ -25,7 +25,7 @@ from hydrowatch.commands import up
 
 COMPOSE = Path(__file__).resolve().parent.parent / "compose.yaml"
 SERVICES = {"plant": "services.plant", "record": "services.recorder", "trainer": "services.trainer",
-            "scorer": "services.scorer"}
+            "scorer": "services.scorer", "web": "services.web"}
 """Services deployed (``hydrowatch up --services`` names → their package); ``watch`` is an operator's view."""
 
 
@@ -66,7 +66,7 @@ def test_compose_services_are_valid_hydrowatch_invocations(compose: dict) -> Non
     assert "--backend-store-uri postgresql://" in mlflow and "postgres" in compose
     commands = {name: command for name, (command, _, _) in hydrowatch_services(compose).items()}
     assert commands == {"plant": "plant", "record-0": "record", "record-1": "record", "trainer": "trainer",
-                        "score-0": "scorer", "score-1": "scorer"}
+                        "score-0": "scorer", "score-1": "scorer", "web": "web"}
     assert set(commands.values()) == set(up.KNOWN) - {"watch"} == set(SERVICES)
 
 
@@ -113,8 +113,8 @@ def test_compose_topology_is_the_one_up_starts(compose: dict) -> None:
     for name, (command, args, _) in services.items():
         by_command.setdefault(command, []).append((name, args))
     (plant,), (trainer_name, trainer) = by_command["plant"], by_command["trainer"][0]
-    fleets = {args.fleet for command in ("plant", "record", "scorer") for _, args in by_command[command]}
-    assert fleets == {plant[1].fleet}, "plant, recorders and scorers on one fleet"
+    fleets = {args.fleet for command in ("plant", "record", "scorer", "web") for _, args in by_command[command]}
+    assert fleets == {plant[1].fleet}, "plant, recorders, scorers and the web page on one fleet"
     for name, recorder in by_command["record"]:
         # the trainer reads the recorders' folder (same volume, same path) ...
         mounted = {v.split(":")[0]: v.split(":")[1] for v in compose[name]["volumes"]}

@@ -149,11 +149,13 @@ def test_two_recorder_shards_record_every_machine_exactly_once(tmp_path: Path) -
             assert_contiguous(t, 200)
 
 
-def test_up_starts_and_stops_the_services_together(tmp_path: Path) -> None:
-    # in this process (as `hydrowatch up`): it hosts the router, the services are child processes
-    code = main(["up", "--machines", "2", "--speed", "20", "--seconds", "8", "--bus-port", "0",
+def test_up_starts_and_stops_the_services_together(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # in this process (as `hydrowatch up`): it hosts the router, the services are child processes (by default
+    # plant, recorder and the web page, whose address it prints)
+    code = main(["up", "--machines", "2", "--speed", "20", "--seconds", "12", "--bus-port", "0",
                  "--out", str(tmp_path), "--fleet", FLEET])
     assert code == 0
+    assert "fleet page: http://127.0.0.1:" in capsys.readouterr().out
     machines = read_machines(tmp_path / FLEET)
     assert sorted(machines) == ["m000", "m001"]
     for t, recoveries in machines.values():

@@ -150,9 +150,13 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
 
     info = json.loads(capsys.readouterr().out)
     assert info["machine"] == "m7" and info["base_version"].startswith("sha256:") and info["unit"]["seconds"] >= 300
-    test = next(simulate_states(["healthy"], seconds=60, nominal=day, seed=8,
-                                command=duty_cycle(60, (0.5, 3.5), seed=8)))
+    test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
+                                 command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")
+    write_recording(worn, tmp_path / "worn.parquet")
+    assert main(["score", "--model", str(tmp_path / "units" / "m7"), "--data", str(tmp_path / "worn.parquet"),
+                 "--json"]) == 0
+    scored_worn = json.loads(capsys.readouterr().out)
     assert main(["score", "--model", str(tmp_path / "units" / "m7"), "--data", str(tmp_path / "day.parquet"),
                  "--json"]) == 0
     scored = json.loads(capsys.readouterr().out)
@@ -170,6 +174,16 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     got = scorer.update(chunks_from_batches(["t/m7", "t/m8"], [chunk, chunk], cols))
     states = {m: [v.verdict.state for v in got if v.machine == f"t/{m}"] for m in ("m7", "m8")}
     assert states["m7"] == [w["state"] for w in scored["windows"]]
+    # pooled by its own model's boxes (they differ from the fleet model's), so the probabilities agree too
+    # a worn m7 is pooled and judged by its own model (boxes, open-set pooling), as `score` does it
+    chunk = sensor_chunk_from_arrays(worn.t, {c: worn[c] for c in cols})
+    scorer = OnlineScorer(fleet, smoothing=12, unit_method=lambda m: getattr(units.for_machine(m.split("/")[1]),
+                                                                             "health_method", None))
+    got = scorer.update(chunks_from_batches(["t/m7"], [chunk], cols))
+    assert len(got) == len(scored_worn["windows"])
+    for v, w in zip(got, scored_worn["windows"]):
+        assert v.verdict.state == w["state"]
+        assert v.verdict.probabilities == pytest.approx(w["probabilities"], rel=1e-9, abs=1e-300)
     assert states["m7"].count("healthy") > states["m8"].count("healthy")
     registry = Commissionings("models:/hydrowatch-{machine}@champion", fleet, uri)  # the same, from MLflow
     assert info["model_uri"] == "models:/hydrowatch-m7@champion"

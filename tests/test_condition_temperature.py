@@ -56,3 +56,37 @@ def test_a_missing_temperature_reading_makes_the_window_invalid(model_and_warm):
     w = warm["healthy"][:2].copy()
     w[0, 5:9, 4] = np.nan
     assert [v.state for v in model.judge(w)] == ["invalid", "healthy"]
+
+
+def test_without_the_channel_the_boxes_allow_for_the_oil_range(model_and_warm):
+    """Oil 5 K warm and no temperature channel: leaks are read within ±22 % (exp(±0.04·5)), not outside every box."""
+    model = model_and_warm[0]
+    warm = _windows(filtered_noise(30, (0, 4), seed=5), seed=6, oil_c=45.0)
+    blind = {s: w[:, :, :4] for s, w in warm.items()}
+    unknown_oil = {s: w.copy() for s, w in warm.items()}
+    for w in unknown_oil.values():
+        w[:, :, 4] = np.nan  # a temperature channel all NaN: the same as none
+    for state in ("healthy", "motor_leak_warning", "motor_leak_alert", "pump_leak_alert"):
+        assert np.all(model.predict(blind[state], smoothing=12) == state), state
+        np.testing.assert_array_equal(model.predict(unknown_oil[state], smoothing=12), model.predict(blind[state],
+                                                                                                   smoothing=12))
+    assert model.judge(unknown_oil["healthy"][:1])[0].state == "healthy"  # all NaN is not a gap
+    model.features_.oil_range = 0.0  # the boxes of 40 °C oil: a warm alert's leakage lies past its band
+    try:
+        assert np.mean(model.predict(blind["motor_leak_alert"], smoothing=12) == "motor_leak_alert") <= 0.5
+    finally:
+        model.features_.oil_range = 5.0
+
+
+def test_the_oil_box_widens_the_total_leakage_of_the_path():
+    from hydrowatch.condition.oil import leakage_range, oil_box
+    from hydrowatch.plant import PlantParameters
+
+    p = PlantParameters()
+    c_ref = p.Dp * p.omega_p / p.Pc
+    f_lo, f_hi = leakage_range(0.04, 5.0)
+    assert (f_lo, f_hi) == pytest.approx((np.exp(-0.2), np.exp(0.2)))
+    box = oil_box({"motor_leak": (0.3, 0.4), "load": (-0.1, 0.1)}, p, (f_lo, f_hi))
+    c0 = p.Ctm / c_ref  # a motor leak of severity s at leakage factor f reads (c0 + s)·f − c0 at f = 1
+    assert box["motor_leak"] == pytest.approx(((c0 + 0.3) * f_lo - c0, (c0 + 0.4) * f_hi - c0))
+    assert box["load"] == (-0.1, 0.1)  # not a leakage

@@ -233,6 +233,26 @@ def test_parity_fleet_stream_equals_batch_pooled_or_not(parity_dir: Path, fleet:
     assert len(phases) == (len(fleet) if phased else 1)
 
 
+def test_a_machine_without_the_temperature_channel_is_pooled_with_the_oil_range(parity_dir: Path, fleet: list) -> None:
+    """A temperature bundle, chunks without temperature: the same verdicts as the batch of 4-channel windows (the
+    leak boxes widened by the oil's range, condition/oil.py), pooled over the boxes of those windows."""
+    from hydrowatch.training.bundle import ModelBundle
+
+    bundle = ModelBundle.load(parity_dir)
+    assert bundle.manifest.get("temperature") and bundle.condition is not None
+    r = fleet[2]
+    scorer = OnlineScorer(bundle, smoothing=4)
+    out = []
+    for a in range(0, len(r) - 99, 100):
+        out += scorer.update([Chunk("m", r.t[a:a + 100], {c: r[c][a:a + 100] for c in COLUMNS})])
+    raw = windows_from_recording(r, bundle.window, bundle.hop, temperature=False)
+    verdicts, _ = bundle.condition.judge_with_scores(raw, 4)
+    assert len(out) == len(verdicts) >= 5
+    for a, b in zip(out, verdicts):
+        assert a.verdict.state == b.state
+        assert a.verdict.probabilities == pytest.approx(b.probabilities, rel=1e-12, abs=1e-15)
+
+
 def test_pooled_history_survives_a_break_and_the_window_is_invalid(parity_dir: Path, fleet: list) -> None:
     from hydrowatch.training.bundle import ModelBundle
 

@@ -151,6 +151,23 @@ class ParityEstimates:
     curvature: Mapping[str, np.ndarray]
 
 
+def merged_estimates(found: list[tuple[np.ndarray, ParityEstimates]], valid: np.ndarray) -> ParityEstimates | None:
+    """One :class:`~hydrowatch.condition.estimates.ParityEstimates` of the ``valid`` windows (mask over all) from
+    those of the oil parts, each with a mask of its windows' positions among all; None when there are none."""
+    if len(found) <= 1:
+        return found[0][1] if found else None
+    fields = []
+    for name in ("severity", "mse", "curvature"):
+        merged = {}
+        for key in getattr(found[0][1], name):
+            full = np.full(valid.size, np.nan)
+            for at, estimates in found:
+                full[at] = getattr(estimates, name)[key]
+            merged[key] = full[valid]
+        fields.append(merged)
+    return ParityEstimates(*fields)
+
+
 def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool = True) -> ParityEstimates:
     """Fit every relation once per window (:mod:`hydrowatch.condition.parity`).
 
@@ -272,7 +289,7 @@ def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | N
     for i in range(windows.shape[0]):
         why = None
         for j, c in enumerate(used):
-            if bad[i, j]:
+            if bad[i, j] and not (c == WIDTH and bad[i, j] == windows.shape[1]):  # all NaN: temperature unknown
                 why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
                 break
             if 0 < c < WIDTH and stuck[i, j]:

@@ -40,6 +40,8 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
+from hydrowatch.condition.features_store import features_from_dict, features_to_dict
+from hydrowatch.condition.oil import OIL_RANGE, leakage_range, oil_box, oil_parts, temperature_known
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, window_starts
@@ -49,7 +51,6 @@ from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
 
 _log = get_logger(__name__)
-KINDS = ("scores", "severities")
 BAND_MARGIN = 0.05
 """Relative widening of each severity band (the band edges are physics, the level is fitted)."""
 RELATION_OF: dict[str, str] = {"load": "load", "motor_leak": "motor", **{f: "valve" for f in E.parity.VALVE_HYPOTHESES}}
@@ -70,9 +71,6 @@ class ConditionFeatures:
         relations used to fill them drop out).
     nominal : PlantParameters or mapping, optional
         Nominal parameters of the healthy machine (default: plant-model.md's table).
-    kind : {"scores", "severities"}, default "scores"
-        ``"scores"``: the per-state relation scores (module docstring). ``"severities"``: the
-        unconstrained parity estimates, 6 severities and log10 residual ratios of the 2 + 4 fits.
     tolerance : float, default 0.25
         How far (× its warning severity) a fault that is not a state's own may be from nominal.
     level_weight : float, default 1.0
@@ -85,6 +83,10 @@ class ConditionFeatures:
         k, 1/K, of the oil: viscosity ∝ exp(−k·(T − 40 °C)). Used with windows that carry the
         temperature channel to refer leakage to 40 °C (take it from the oil's data sheet; 0.04 is
         a mineral ISO VG 46 oil near 40 °C and the plant simulator's default).
+    oil_range : float, default :data:`~hydrowatch.condition.oil.OIL_RANGE` (5 K)
+        Half-range of the oil temperature around 40 °C, K, that a window *without* the temperature
+        channel (4 channels, or a temperature channel all NaN) may have: its leak boxes are widened
+        by that viscosity range (:mod:`hydrowatch.condition.oil`). 0 reads such windows as 40 °C oil.
     identify : bool, default True
         Identify the unit's own nominal parameters from the ``healthy`` windows before anything
         else (:func:`hydrowatch.condition.unit.identify_unit`, starting from ``nominal``): every
@@ -110,35 +112,34 @@ class ConditionFeatures:
     """
 
     def __init__(self, *, window: int = 1000, hop: int = 1000, sensors: Sequence[str] = SENSORS,
-                 nominal: PlantParameters | Mapping[str, float] | None = None, kind: str = "scores",
+                 nominal: PlantParameters | Mapping[str, float] | None = None,
                  tolerance: float = 0.25, level_weight: float = 1.0, level_width: float = 0.01,
-                 viscosity_coefficient: float = 0.04, identify: bool = True) -> None:
+                 viscosity_coefficient: float = 0.04, identify: bool = True, oil_range: float = OIL_RANGE) -> None:
         self.window = window
         self.hop = hop
         self.sensors = sensors
         self.nominal = nominal
-        self.kind = kind
         self.tolerance = tolerance
         self.level_weight = level_weight
         self.level_width = level_width
         self.viscosity_coefficient = viscosity_coefficient
         self.identify = identify
+        self.oil_range = oil_range
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters (``nominal`` as a plain dict or None, JSON-able)."""
         nominal = self.nominal.to_dict() if isinstance(self.nominal, PlantParameters) else self.nominal
         return {"window": self.window, "hop": self.hop, "sensors": list(self.sensors),
-                "nominal": None if nominal is None else dict(nominal), "kind": self.kind, "tolerance": self.tolerance,
+                "nominal": None if nominal is None else dict(nominal), "tolerance": self.tolerance,
                 "level_weight": self.level_weight, "level_width": self.level_width,
-                "viscosity_coefficient": self.viscosity_coefficient, "identify": self.identify}
+                "viscosity_coefficient": self.viscosity_coefficient, "identify": self.identify,
+                "oil_range": self.oil_range}
 
     def _parameters(self) -> PlantParameters:
         check_window(self.window, self.hop)
         unknown = sorted(set(self.sensors) - set(SENSORS))
         if unknown or not self.sensors:
             raise ParameterError(f"sensors must be a non-empty subset of {list(SENSORS)}. Got {list(self.sensors)}.")
-        if self.kind not in KINDS:
-            raise ParameterError(f"kind must be one of {KINDS}. Got {self.kind!r}.")
         if not 0.0 < self.tolerance < 1.0:
             raise ParameterError(f"tolerance must be in (0, 1). Got {self.tolerance!r}; 0.25 is the default.")
         if not (self.level_weight >= 0.0 and 0.0 < self.level_width < self.tolerance):
@@ -147,6 +148,8 @@ class ConditionFeatures:
         if not 0.0 <= self.viscosity_coefficient <= 0.2:
             raise ParameterError(f"viscosity_coefficient must be in [0, 0.2] 1/K. Got {self.viscosity_coefficient!r}; "
                                  "0.04 suits a mineral oil near 40 °C.")
+        if not 0.0 <= self.oil_range <= 30.0:
+            raise ParameterError(f"oil_range must be in [0, 30] K. Got {self.oil_range!r}; {OIL_RANGE} is the default.")
         if isinstance(self.nominal, PlantParameters):
             return self.nominal
         return PlantParameters.from_dict(dict(self.nominal)) if self.nominal is not None else PlantParameters()
@@ -194,8 +197,7 @@ class ConditionFeatures:
         self.level_boxes_ = {state: self._box(state, p, narrow=True) for state in self.states_}
         self.floors_ = self._floors(*fitted["healthy"])
         self.feature_names_ = self._names()
-        event(_log, "condition features fitted", states=len(self.states_), relations=",".join(self.relations_),
-              kind=self.kind)
+        event(_log, "condition features fitted", states=len(self.states_), relations=",".join(self.relations_))
         return self
 
     def _floors(self, sig: E.WindowSignals, est: E.ParityEstimates) -> dict[str, float]:
@@ -239,11 +241,7 @@ class ConditionFeatures:
                            BAND_MARGIN + margin)
 
     def _names(self) -> list[str]:
-        if self.kind == "scores":
-            return [f"{r}|{k}" for r in self.relations_ for k in self.states_]
-        fits = [r for r in ("load", "motor") if r in self.relations_] + ["pump_leak", "relief_spring", "valve_coil",
-                                                                         "valve_leak"]
-        return [f"severity|{f}" for f in FAULTS] + [f"log_residual|{f}" for f in fits]
+        return [f"{r}|{k}" for r in self.relations_ for k in self.states_]
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "floors_"):
@@ -257,14 +255,30 @@ class ConditionFeatures:
             return fault_parameters(self.nominal_, fault, self.levels_[state])
         return self.nominal_
 
-    def _estimates(self, windows: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]:
-        """Valid-window mask (n,) and the fill groups of the valid windows (nominal fill first; [] if none valid).
+    def _by_oil(self, windows: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+        """The windows split by whether they carry the oil temperature: (mask, windows, known) per part present.
+
+        A window without it (4 channels, or the temperature all NaN) is judged with the leak boxes
+        widened by ``oil_range`` (:meth:`_box_sets`) and given as 4 channels.
+        """
+        self._check_fitted()
+        return oil_parts(E.check_windows(windows, self.window), E.WIDTH)
+
+    def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]:
+        """(band, level) boxes of every state; for windows without the oil temperature widened by ``oil_range``."""
+        if temperature or self.oil_range == 0.0:
+            return self.boxes_, self.level_boxes_
+        factors = leakage_range(self.viscosity_coefficient, self.oil_range)
+        return tuple({s: oil_box(b, self.nominal_, factors) for s, b in boxes.items()}
+                     for boxes in (self.boxes_, self.level_boxes_))
+
+    def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]:
+        """Valid-window mask (n,) and the fill groups of the valid windows (nominal fill first; [] if none valid)
+        of checked windows ``w`` of one oil part (:meth:`_by_oil`).
 
         With every sensor present there is one group; otherwise one per distinct fill
         (:func:`hydrowatch.condition.estimates.fill_faults`): at most 5, not one per state.
         """
-        self._check_fitted()
-        w = E.check_windows(windows, self.window)
         ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
         if not ok.any():
             return ok, []
@@ -282,19 +296,15 @@ class ConditionFeatures:
 
     def transform(self, windows: np.ndarray) -> np.ndarray:
         """Features of raw windows (n_windows, window, 4) → (n_windows, n_features); NaN rows are invalid windows."""
-        ok, groups = self._estimates(windows)
-        out = np.full((ok.size, len(self.feature_names_)), np.nan)
-        if not groups:
-            return out
-        if self.kind == "severities":
-            est = groups[0].estimates
-            fits = [r for r in ("load", "motor") if r in self.relations_] + list(E.parity.VALVE_HYPOTHESES)
-            floor = {f: self.floors_["valve" if f in E.parity.VALVE_HYPOTHESES else f] for f in fits}
-            columns = [est.severity[f] for f in FAULTS] + [np.log10(np.maximum(est.mse[f], 1e-300) / floor[f])
-                                                            for f in fits]
-            out[ok] = np.stack(columns, axis=1)
-            return out
-        out[ok] = self._ratios(groups, (self.boxes_,))[0][0]
+        parts = self._by_oil(windows)
+        out = np.full((sum(m.sum() for m, _, _ in parts), len(self.feature_names_)), np.nan)
+        for mask, w, known in parts:
+            ok, groups = self._estimates(w)
+            if not groups:
+                continue
+            rows = np.full((ok.size, out.shape[1]), np.nan)
+            rows[ok] = self._ratios(groups, self._box_sets(known)[:1])[0][0]
+            out[mask] = rows
         return out
 
     def transform_with_levels(self, windows: np.ndarray) -> np.ndarray:
@@ -311,7 +321,7 @@ class ConditionFeatures:
         Shape (n_windows, 2 · n_features + 2 · n_states): the band and level ratios, then for every
         state the free estimate of its own fault's severity (n_states), then that fault's curvature
         d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy). See
-        :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout`.
+        :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout` (of the windows' oil part).
         """
         return self.evidence_and_estimates(windows)[0]
 
@@ -319,12 +329,28 @@ class ConditionFeatures:
         """:meth:`transform_evidence` rows, the valid-window mask (n,) and the valid windows' estimates at the
         nominal fill (None when no window is valid), from one fit of the relations: what the degradation index
         reads (:func:`hydrowatch.condition.degradation.features_degradation`) beside the verdicts."""
-        ok, groups = self._estimates(windows)
+        parts = self._by_oil(windows)
+        n = sum(int(m.sum()) for m, _, _ in parts)
+        out = np.full((n, 2 * len(self.feature_names_) + 2 * len(self.states_)), np.nan)
+        valid = np.zeros(n, dtype=bool)
+        found: list[tuple[np.ndarray, E.ParityEstimates]] = []
+        for mask, w, known in parts:
+            rows, ok, estimates = self._evidence(w, known)
+            out[mask], valid[mask] = rows, ok
+            if estimates is not None:
+                at = np.zeros(n, dtype=bool)
+                at[np.flatnonzero(mask)[ok]] = True
+                found.append((at, estimates))
+        return out, valid, E.merged_estimates(found, valid)
+
+    def _evidence(self, w: np.ndarray, known: bool) -> tuple[np.ndarray, np.ndarray, E.ParityEstimates | None]:
+        """:meth:`evidence_and_estimates` of one oil part (``known``: the windows carry the oil temperature)."""
+        ok, groups = self._estimates(w)
         k = len(self.states_)
         out = np.full((ok.size, 2 * len(self.feature_names_) + 2 * k), np.nan)
         if not groups:
             return out, ok, None
-        (band, level), free = self._ratios(groups, (self.boxes_, self.level_boxes_))
+        (band, level), free = self._ratios(groups, self._box_sets(known))
         severity, weight = np.zeros((band.shape[0], k)), np.zeros((band.shape[0], k))
         faults = self._own_faults()
         for g in groups:
@@ -341,17 +367,24 @@ class ConditionFeatures:
         faults = [parse_state(state)[0] for state in self.states_]
         return [f if f is not None and RELATION_OF[f] in self.relations_ else None for f in faults]
 
-    def evidence_layout(self) -> EvidenceLayout:
-        """Where :meth:`transform_evidence` puts each state's own fault, and its band and level boxes."""
+    def evidence_layout(self, temperature: bool = True) -> EvidenceLayout:
+        """Where :meth:`transform_evidence` puts each state's own fault, and its band and level boxes (those of
+        windows without the oil temperature when ``temperature`` is False, :meth:`_box_sets`)."""
         self._check_fitted()
+        band, level = self._box_sets(temperature)
         k = len(self.states_)
         columns = np.full(k, -1, dtype=np.int64)
         bounds = np.zeros((2, k, 2))
         for j, (state, fault) in enumerate(zip(self.states_, self._own_faults())):
             if fault is not None:
                 columns[j] = self.relations_.index(RELATION_OF[fault]) * k + j
-                bounds[0, j], bounds[1, j] = self.boxes_[state][fault], self.level_boxes_[state][fault]
+                bounds[0, j], bounds[1, j] = band[state][fault], level[state][fault]
         return EvidenceLayout(columns, bounds, prior_once=set(self.relations_) == set(E.RELATIONS))
+
+    def layout_for(self, windows: np.ndarray) -> EvidenceLayout:
+        """:meth:`evidence_layout` for one machine's raw ``windows``: with the oil temperature only if all carry it."""
+        w = E.check_windows(windows, self.window)
+        return self.evidence_layout(bool(temperature_known(w, E.WIDTH).all()))
 
     def _ratios(self, groups: Sequence[E.FillGroup], boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]
                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
@@ -361,11 +394,11 @@ class ConditionFeatures:
 
     def severities(self, windows: np.ndarray) -> dict[str, np.ndarray]:
         """Unconstrained severity estimates of every fault per window, ``{fault: (n_windows,)}`` (NaN where invalid)."""
-        ok, groups = self._estimates(windows)
-        out = {f: np.full(ok.size, np.nan) for f in FAULTS}
-        if groups:
+        _, valid, estimates = self.evidence_and_estimates(windows)
+        out = {f: np.full(valid.size, np.nan) for f in FAULTS}
+        if estimates is not None:
             for f in FAULTS:
-                out[f][ok] = groups[0].estimates.severity[f]
+                out[f][valid] = estimates.severity[f]
         return out
 
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:
@@ -373,7 +406,8 @@ class ConditionFeatures:
 
         Invalid: NaN/inf in the command, a used sensor or the temperature channel (a gap, a dropped
         sensor), or a used sensor constant over the window (stuck). A constant command or
-        temperature is fine (a hold, a warm machine).
+        temperature is fine (a hold, a warm machine); a temperature all NaN is an unknown oil
+        temperature (``oil_range``).
         """
         return E.invalid_reasons(E.check_windows(windows, self.window), self.sensors)
 
@@ -381,40 +415,16 @@ class ConditionFeatures:
         """First sample of each window of a record of ``n_samples`` samples."""
         return window_starts(n_samples, self.window, self.hop)
 
-    # -- persistence --------------------------------------------------------------------------------
+    # -- persistence (:mod:`hydrowatch.condition.features_store`) ------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form: parameters and fitted state."""
         self._check_fitted()
-        return {"params": self.get_params(), "nominal_parameters": self.nominal_.to_dict(),
-                "states": list(self.states_), "relations": list(self.relations_), "levels": self.levels_,
-                "boxes": {k: {f: list(b) for f, b in box.items()} for k, box in self.boxes_.items()},
-                "level_boxes": {k: {f: list(b) for f, b in box.items()} for k, box in self.level_boxes_.items()},
-                "floors": self.floors_, "unit": self.unit_}
+        return features_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ConditionFeatures:
         """Inverse of :meth:`to_dict`."""
-        try:
-            model = cls(**{**data["params"], "sensors": tuple(data["params"]["sensors"])})
-            model._parameters()
-            model.nominal_ = PlantParameters.from_dict(data["nominal_parameters"])
-            model.states_ = tuple(data["states"])
-            model.relations_ = tuple(data["relations"])
-            model.levels_ = {k: float(v) for k, v in data["levels"].items()}
-            model.boxes_ = {k: {f: (float(b[0]), float(b[1])) for f, b in box.items()}
-                            for k, box in data["boxes"].items()}
-            model.floors_ = {k: float(v) for k, v in data["floors"].items()}
-            model.unit_ = dict(data.get("unit", {}))
-            if "level_boxes" in data:  # saved since commissioning (boxes moved to a unit are not recomputed)
-                model.level_boxes_ = {k: {f: (float(b[0]), float(b[1])) for f, b in box.items()}
-                                      for k, box in data["level_boxes"].items()}
-            else:
-                model.level_boxes_ = {k: model._box(k, model.nominal_, narrow=True) for k in model.states_}
-        except (KeyError, TypeError, IndexError) as exc:
-            raise DataError(f"condition features must have params, states, relations, levels, boxes and floors. "
-                            f"Missing/bad: {exc}.") from None
-        model.feature_names_ = model._names()
-        return model
+        return features_from_dict(cls, data)
 
     def save(self, path: str | Path) -> None:
         """Write :meth:`to_dict` as JSON to ``path``."""

@@ -97,7 +97,7 @@ class ConditionModel:
     Parameters
     ----------
     features : ConditionFeatures, optional
-        Unfitted template (``kind="scores"``); default ``ConditionFeatures()``.
+        Unfitted template; default ``ConditionFeatures()``.
     classifier : HealthClassifier, optional
         Unfitted template; None (default) decides with :class:`ParityRule`.
     open_set : OpenSetRule, optional
@@ -132,7 +132,7 @@ class ConditionModel:
         self.pooled_excess_ = float(self.pooled_excess)
         self.pool_open_set_: bool = True
         template = self.features or ConditionFeatures()
-        self.features_ = ConditionFeatures(**{**template.get_params(), "kind": "scores"}).fit(windows_by_state)
+        self.features_ = ConditionFeatures(**template.get_params()).fit(windows_by_state)
         states = list(self.features_.states_)
         X, y = labelled_rows({s: self.features_.transform_with_levels(windows_by_state[s]) for s in states})
         if self.classifier is None:
@@ -177,7 +177,7 @@ class ConditionModel:
         band = ratios[:, : len(self.features_.feature_names_)]
         if smoothing == 1:
             return self.judge_evidence(ratios, ratios, reasons), band
-        layout = self.features_.evidence_layout()
+        layout = self.features_.layout_for(windows)
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
                                  pooled_windows(rows, smoothing)), band
 

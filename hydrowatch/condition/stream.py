@@ -36,17 +36,22 @@ class ConditionStream:
         Valid windows pooled (1: each window alone). 6 (30 s) settles 13-state duty cycles at
         trained severities; 12 (60 s) is what severities spread in their bands and the open set need
         (docs/command-invariance.md).
+    temperature : bool, default True
+        Whether the machine's windows carry the oil temperature (False: the boxes of windows without
+        it, :mod:`hydrowatch.condition.oil`).
     """
 
-    def __init__(self, model: ConditionModel, *, n_windows: int = POOLED_WINDOWS) -> None:
+    def __init__(self, model: ConditionModel, *, n_windows: int = POOLED_WINDOWS, temperature: bool = True) -> None:
         if not hasattr(model, "open_set_"):
             raise NotFittedError("model must be a fitted ConditionModel. Call fit(...) or ConditionModel.load(dir).")
         self.model = model
         self.n_windows = n_windows
-        self._smoother = EvidenceSmoother(n_windows=n_windows, layout=model.features_.evidence_layout())
+        self.temperature = temperature
+        self._smoother = EvidenceSmoother(n_windows=n_windows, layout=model.features_.evidence_layout(temperature))
 
     def update(self, window: np.ndarray) -> None:
-        """Add one raw window, shape (window, 4 or 5). Returns nothing."""
+        """Add one raw window, shape (window, 4 or 5; with or without the temperature as the stream was made).
+        Returns nothing."""
         self.update_features(self.model.features_.transform_evidence(np.asarray(window)[None])[0])
 
     def update_features(self, features: np.ndarray) -> None:

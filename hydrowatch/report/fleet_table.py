@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import pyarrow as pa
@@ -29,6 +31,8 @@ class MachineRow:
     reason : str or None
     windows : int
         Verdicts received.
+    since_wall : float or None
+        Wall-clock receive time of that first verdict, s since the Unix epoch (None when the caller gave none).
     """
 
     state: str
@@ -37,6 +41,7 @@ class MachineRow:
     last_s: float
     reason: str | None
     windows: int
+    since_wall: float | None = None
 
     def why(self) -> str:
         """Why the machine is in its state, for people: the verdict's reason, else its probability."""
@@ -50,9 +55,14 @@ class MachineRow:
                 "why": self.why()}
 
 
+LEVELS = ("alert", "unknown", "warning", "invalid", "healthy")
+"""Names of the :func:`urgency` ranks, most urgent first (``LEVELS[urgency(state)]``)."""
+
+
 def urgency(state: str) -> int:
     """Rank of a verdict state, most urgent first: 0 ``*_alert``, 1 ``unknown`` (a fault never trained on),
-    2 ``*_warning``, 3 ``invalid`` (no verdict possible), 4 ``healthy``."""
+    2 ``*_warning`` (and any other trained fault state), 3 ``invalid`` (no verdict possible), 4 ``healthy``;
+    :data:`LEVELS` names them."""
     if state.endswith("_alert"):
         return 0
     return {UNKNOWN: 1, INVALID: 3, HEALTHY: 4}.get(state, 2)
@@ -64,14 +74,23 @@ class FleetTable:
     def __init__(self) -> None:
         self._rows: dict[str, MachineRow] = {}
 
-    def update(self, machine: str, verdict: dict[str, Any]) -> None:
-        """Add one verdict (a ``health_verdict`` row as a dict) of ``machine``; returns nothing."""
+    def update(self, machine: str, verdict: dict[str, Any], received: float | None = None) -> MachineRow:
+        """Add one verdict (a ``health_verdict`` row as a dict) of ``machine``, received at wall-clock time
+        ``received`` (s since the epoch, optional); returns the machine's new row."""
         old = self._rows.get(machine)
         state = str(verdict["state"])
-        since = old.since_s if old is not None and old.state == state else float(verdict["window_start"])
-        self._rows[machine] = MachineRow(state, float(verdict.get("probability") or 0.0), since,
-                                         float(verdict["window_end"]), verdict.get("reason"),
-                                         (old.windows if old else 0) + 1)
+        if old is not None and old.state == state:
+            since, since_wall = old.since_s, old.since_wall
+        else:
+            since, since_wall = float(verdict["window_start"]), received
+        row = self._rows[machine] = MachineRow(state, float(verdict.get("probability") or 0.0), since,
+                                               float(verdict["window_end"]), verdict.get("reason"),
+                                               (old.windows if old else 0) + 1, since_wall)
+        return row
+
+    def latest(self) -> Mapping[str, MachineRow]:
+        """Machine → row, unsorted and read-only (a live view: no copy, no sort)."""
+        return MappingProxyType(self._rows)
 
     def rows(self) -> dict[str, MachineRow]:
         """Machine → row, sorted by machine."""

@@ -11,7 +11,7 @@ every health method: both online engines call these functions.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -183,12 +183,18 @@ def chunk_matrix(chunk: Chunk, columns: Sequence[str], defaults: Mapping[str, fl
     return x
 
 
+def optional_columns(defaults: Mapping[str, float]) -> set[str]:
+    """Columns whose default is NaN: a NaN there means "not known" (the oil temperature), never a break."""
+    return {c for c, v in defaults.items() if np.isnan(v)}
+
+
 def plan_chunk(t: np.ndarray, x: np.ndarray, columns: Sequence[str],
-               next_t: float | None) -> tuple[list[Segment | Break], float | None]:
+               next_t: float | None, optional: Collection[str] = ()) -> tuple[list[Segment | Break], float | None]:
     """Cut one chunk (times ``t`` (n,), columns ``x`` (n, n_columns)) into clean segments and the breaks between them.
 
     ``next_t`` is when the machine's next sample is expected (None: anything goes). Returns the
-    operations in time order and the new ``next_t``; a late chunk is dropped whole.
+    operations in time order and the new ``next_t``; a late chunk is dropped whole. NaN in an
+    ``optional`` column (:func:`optional_columns`) is not a break.
     """
     t = np.asarray(t, dtype=np.float64)
     ops: list[Segment | Break] = []
@@ -202,14 +208,15 @@ def plan_chunk(t: np.ndarray, x: np.ndarray, columns: Sequence[str],
             return ops, next_t  # the chunk is dropped: its samples belong to the past
         if lag > TOLERANCE:
             ops.append(Break(f"gap of {lag:.3f} s before t={t[0]:.3f} s", float(next_t)))
-    bad = ~np.all(np.isfinite(x), axis=1) | ~np.isfinite(t)
+    required = [j for j, c in enumerate(columns) if c not in optional]
+    bad = ~np.all(np.isfinite(x[:, required]), axis=1) | ~np.isfinite(t)
     jumps = np.flatnonzero(np.abs(np.diff(t) - DT) > TOLERANCE) + 1
     start = 0
     for i in sorted({*np.flatnonzero(bad).tolist(), *jumps.tolist()}):
         if i > start:
             ops.append(Segment(t[start:i], x[start:i]))
         if bad[i]:
-            names = [c for c, v in zip(columns, x[i]) if not np.isfinite(v)] or ["t"]
+            names = [c for c, v in zip(columns, x[i]) if not np.isfinite(v) and c not in optional] or ["t"]
             ops.append(Break(f"NaN in {', '.join(names)} at t={t[i]:.3f} s", float(t[i])))
             start = i + 1
         elif i >= start:
@@ -253,8 +260,10 @@ def clean_chunks(batch: ChunkBatch, columns: Sequence[str], expected: np.ndarray
             ok &= ~batch.absent[c]
     starts = batch.offsets[:-1]
     bad = ~np.isfinite(batch.t)
+    optional = optional_columns(defaults)
     for c in columns:
-        bad |= ~np.isfinite(batch.channels[c]) & ~np.repeat(batch.absent[c], lengths)
+        if c not in optional:
+            bad |= ~np.isfinite(batch.channels[c]) & ~np.repeat(batch.absent[c], lengths)
     if bad.any():
         ok[np.unique(np.searchsorted(batch.offsets, np.flatnonzero(bad), side="right") - 1)] = False
     step = np.abs(np.diff(batch.t) - DT) > TOLERANCE

@@ -38,6 +38,7 @@ from hydrowatch.results import TrainingResult
 from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.pipeline import train_and_track
 from hydrowatch.training.tracking import set_alias
+from hydrowatch.web import web_port
 
 _log = get_logger(__name__)
 FLEET = "demo"
@@ -64,6 +65,8 @@ class DemoSettings:
     live_seconds: float = 180.0
     """Simulated seconds of the live fleet: faults appear from 20 s to 60 s, and the scorer pools 12 windows."""
     speed: float = 5.0
+    web_port: int | None = None
+    """Port of the live fleet page (None: 8050 when free, else any free port)."""
 
 
 def identification_data(folder: Path, settings: TrainingSettings, seed: int) -> list[Path]:
@@ -96,11 +99,15 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
     bus = ["--bus-port", str(port)]
     logs = s.out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
+    http_port = web_port(s.web_port)
+    web = f"http://127.0.0.1:{http_port}/"
     processes = [
         _spawn("services.recorder", ["--out", str(s.out / "recordings"), "--fleet", FLEET, *bus],
                logs / "recorder.log"),
         _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, *bus], logs / "scorer.log"),
+        _spawn("services.web", ["--fleet", FLEET, "--port", str(http_port), *bus], logs / "web.log"),
     ]
+    print(f"live fleet page (while the live fleet runs): {web}", file=sys.stderr, flush=True)
     fleet = Fleet(list(MACHINES), fleet=FLEET, seed=s.seed + 1)
     command = FilteredNoiseCommand(fleet.n_machines, seed=s.seed + 2)
     table = FleetTable()
@@ -138,7 +145,7 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
                 _receive(health, table, timelines, wait=0.2)
     finally:
         _stop(processes)
-    return {"table": table, "timelines": timelines, "truth": truth}
+    return {"table": table, "timelines": timelines, "truth": truth, "web": web}
 
 
 def _receive(health: Subscriber, table: FleetTable, timelines: dict[str, list], wait: float = 0.0) -> None:
@@ -176,5 +183,6 @@ def run_demo(s: DemoSettings, *, show: bool = False) -> dict[str, Any]:
         "accuracy": {k: summaries[k]["checks"] for k in accuracy},
         "fleet": {m: r.state for m, r in live["table"].rows().items()},
         "attention": live["table"].attention(),
+        "web": live["web"],
         "seconds": round(time.monotonic() - t0, 1),
     }

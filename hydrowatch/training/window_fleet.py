@@ -44,6 +44,7 @@ from hydrowatch.training.chunks import (
     WindowVerdict,
     clean_chunks,
     cut_short,
+    optional_columns,
     plan_chunk,
 )
 
@@ -258,7 +259,7 @@ class WindowFleet:
         t = batch.t[a:b]
         expected = self._next_t[slot]
         ops, next_t = plan_chunk(t, self._matrix(batch, np.arange(a, b)), self.columns,
-                                 None if np.isnan(expected) else float(expected))
+                                 None if np.isnan(expected) else float(expected), optional_columns(self.defaults))
         for op in ops:
             if isinstance(op, Break):
                 if self._fed[slot]:  # the window in progress began at its place after the (re)start

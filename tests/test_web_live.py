@@ -1,0 +1,229 @@
+"""The live fleet page's library (hydrowatch.web.live) and its HTTP side (services.web.server), without a browser."""
+
+from __future__ import annotations
+
+import json
+import threading
+import urllib.error
+import urllib.request
+from typing import Any
+
+import pytest
+
+from hydrowatch.errors import ParameterError
+from hydrowatch.web.live import FleetLive, PageView, counts, select
+
+STATES = ("healthy", "load_warning", "load_alert")
+
+
+def verdict(t: float, state: str, p: float = 0.9, reason: str | None = None, **extra: Any) -> dict[str, Any]:
+    probabilities = {s: (p if s == state else (1 - p) / 2) for s in STATES} if state in STATES else {}
+    return {"window_start": t, "window_end": t + 5.0, "state": state, "probability": p, "probabilities": probabilities,
+            "reason": reason, "model_version": "parity/v3", **extra}
+
+
+def kl_rows(t: float, value: float) -> list[dict[str, Any]]:
+    return [{"window_start": t, "window_end": t + 5.0, "sensor": s, "state": k, "relative_entropy": value,
+             "model_version": "parity/v3"} for s in ("load", "motor") for k in STATES]
+
+
+@pytest.fixture
+def live() -> FleetLive:
+    live = FleetLive(history=4)
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy"), received=100.0)
+    live.add_verdict("f1", "m1", verdict(0.0, "load_warning"), received=100.0)
+    live.add_verdict("f2", "m2", verdict(0.0, "healthy"), received=100.0)
+    live.add_verdict("f2", "m2", verdict(5.0, "load_alert"), received=105.0)
+    live.add_verdict("f2", "m2", verdict(10.0, "load_alert"), received=110.0)
+    live.add_verdict("f1", "m3", verdict(5.0, "unknown", 0.0, "no trained state explains the window"), received=105.0)
+    return live
+
+
+def test_rows_come_most_urgent_first_with_since_when(live: FleetLive) -> None:
+    rows = live.rows()
+    assert [r["id"] for r in rows] == ["f2/m2", "f1/m3", "f1/m1", "f1/m0"]
+    alert = rows[0]
+    assert (alert["state"], alert["level"], alert["rank"]) == ("load_alert", "alert", 0)
+    assert (alert["since_s"], alert["since_wall"], alert["last_s"], alert["windows"]) == (5.0, 105.0, 15.0, 3)
+    assert rows[1]["why"] == "no trained state explains the window" and rows[1]["level"] == "unknown"
+    assert len(live) == 4 and live.row("f9/none") is None
+
+
+def test_filters_by_state_level_attention_and_fleet(live: FleetLive) -> None:
+    rows = live.rows()
+    ids = lambda **kw: [r["id"] for r in select(rows, **kw)]  # noqa: E731
+    assert ids() == ids(state="", fleet="") == [r["id"] for r in rows]
+    assert ids(state="attention") == ["f2/m2", "f1/m3", "f1/m1"]
+    assert ids(state="alert") == ids(state="load_alert") == ["f2/m2"]
+    assert ids(state="warning") == ["f1/m1"]
+    assert ids(fleet="f1") == ["f1/m3", "f1/m1", "f1/m0"]
+    assert ids(state="healthy", fleet="f2") == []
+    assert ids(machine="M1") == ["f1/m1"] and ids(machine="m", state="alert") == ["f2/m2"]
+    assert counts(rows) == {"alert": 1, "unknown": 1, "warning": 1, "invalid": 0, "healthy": 1}
+
+
+def test_a_machine_has_its_timeline_and_its_last_windows_evidence(live: FleetLive) -> None:
+    for k in range(3):
+        live.add_evidence("f2", "m2", kl_rows(5.0 * k, 1.0 + k))
+    live.add_evidence("f2", "m2", [])
+    m = live.machine("f2/m2")
+    assert m is not None and m["model_version"] == "parity/v3"
+    t = m["timeline"]
+    assert t["start_s"] == [0.0, 5.0, 10.0] and t["end_s"] == [5.0, 10.0, 15.0]
+    assert t["state"] == ["healthy", "load_alert", "load_alert"] and t["level"] == ["healthy", "alert", "alert"]
+    assert t["probabilities"]["load_alert"] == pytest.approx([0.05, 0.9, 0.9])
+    assert [e["window_start"] for e in m["evidence"]] == [0.0, 5.0, 10.0]
+    assert m["evidence"][-1]["scores"] == {s: {k: 3.0 for k in STATES} for s in ("load", "motor")}
+    for k in range(5):  # the timeline keeps the last `history` verdicts
+        live.add_verdict("f2", "m2", verdict(15.0 + 5 * k, "load_alert"))
+    assert len(live.machine("f2/m2")["timeline"]["state"]) == 4
+    assert live.machine("f9/none") is None
+
+
+def test_evidence_before_any_verdict_is_kept_but_shows_no_row() -> None:
+    live = FleetLive()
+    live.add_evidence("f1", "m0", kl_rows(0.0, 2.0))
+    assert live.rows() == [] and live.seq == 0
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy"))
+    assert len(live.machine("f1/m0")["evidence"]) == 1
+
+
+def test_a_degradation_index_that_a_verdict_carries_is_shown() -> None:
+    live = FleetLive()
+    index = {"load": {"value": 0.4, "ci95": [0.3, 0.5], "rate_per_h": 0.1, "alert_in_s": 21600.0}}
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy", degradation=index))
+    live.add_verdict("f1", "m0", verdict(5.0, "healthy"))  # a verdict without one keeps the last
+    assert live.rows()[0]["degradation"] == index
+    live.add_verdict("f1", "m1", verdict(0.0, "healthy"))
+    assert live.row("f1/m1")["degradation"] is None
+
+
+def test_history_and_evidence_must_be_positive() -> None:
+    with pytest.raises(ParameterError, match="history and evidence must be >= 1"):
+        FleetLive(history=0)
+
+
+def test_a_page_gets_a_snapshot_then_only_what_changed(live: FleetLive) -> None:
+    view = PageView()
+    first = view.update(live)
+    assert first is not None and first["snapshot"] and first["order"] == [r["id"] for r in live.rows()]
+    assert len(first["rows"]) == 4 and first["fleets"] == ["f1", "f2"]
+    assert first["states"] == ["healthy", "load_alert", "load_warning", "unknown"]
+    assert view.update(live) is None  # nothing new
+    live.add_verdict("f1", "m0", verdict(5.0, "healthy"))
+    second = view.update(live)
+    assert second is not None and not second["snapshot"]
+    assert [r["id"] for r in second["rows"]] == ["f1/m0"] and "order" not in second  # same order: not resent
+    live.add_verdict("f1", "m0", verdict(10.0, "load_alert"))
+    third = view.update(live)
+    assert third["order"][:2] == ["f2/m2", "f1/m0"] and third["counts"]["alert"] == 2
+    live.add_evidence("f1", "m1", kl_rows(0.0, 1.0))  # new evidence: the row is resent (its page may show it)
+    assert [r["id"] for r in view.update(live)["rows"]] == ["f1/m1"]
+
+
+def test_a_filtered_page_drops_a_machine_that_leaves_its_filter(live: FleetLive) -> None:
+    view = PageView(state="attention", fleet="f1")
+    first = view.update(live)
+    assert first["order"] == ["f1/m3", "f1/m1"] and first["counts"]["healthy"] == 1  # counts cover the fleet
+    live.add_verdict("f1", "m1", verdict(5.0, "healthy"))
+    second = view.update(live)
+    assert second["rows"] == [] and second["order"] == ["f1/m3"]
+    live.add_verdict("f2", "m2", verdict(15.0, "healthy"))  # another fleet: nothing this page shows changed
+    assert view.update(live) is None
+    assert PageView(machine="3").update(live)["order"] == ["f1/m3"]
+
+
+def _get(url: str) -> tuple[int, bytes, str]:
+    try:
+        with urllib.request.urlopen(url, timeout=10) as response:
+            return response.status, response.read(), response.headers["Content-Type"]
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read(), exc.headers["Content-Type"]
+
+
+def test_the_server_serves_pages_json_and_event_streams(live: FleetLive) -> None:
+    from services.web.server import STATIC, WebServer
+
+    condition = threading.Condition()
+    with WebServer(live, condition) as server:
+        base = server.url
+        status, body, kind = _get(base)
+        assert status == 200 and kind.startswith("text/html") and b"/static/fleet.js" in body
+        assert b"http" not in body.replace(b"http-equiv", b"")  # nothing fetched from elsewhere
+        for name in sorted(p.name for p in STATIC.iterdir()):
+            status, body, _ = _get(base + "static/" + name)
+            assert status == 200 and b"https://" not in body and b"//cdn" not in body, name
+        assert _get(base + "static/..%2F__init__.py")[0] == 404
+        assert _get(base + "static/../server.py")[0] == 404
+        assert _get(base + "nothing")[0] == 404
+        status, body, _ = _get(base + "api/fleet?state=attention&fleet=f1")
+        assert status == 200 and [r["id"] for r in json.loads(body)["rows"]] == ["f1/m3", "f1/m1"]
+        status, body, _ = _get(base + "api/machine?id=f2/m2")
+        assert status == 200 and json.loads(body)["row"]["state"] == "load_alert"
+        assert _get(base + "api/machine?id=f9/x")[0] == 404
+        assert _get(base + "machine?id=f2/m2")[0] == 200
+        with urllib.request.urlopen(base + "events?state=alert", timeout=10) as stream:
+            assert stream.headers["Content-Type"] == "text/event-stream"
+            first = json.loads(stream.readline().decode().removeprefix("data: "))
+            assert first["snapshot"] and first["order"] == ["f2/m2"]
+            assert stream.readline() == b"\n"
+            with condition:
+                live.add_verdict("f1", "m0", verdict(5.0, "load_alert"))
+                condition.notify_all()
+            update = json.loads(stream.readline().decode().removeprefix("data: "))
+            # both alerts since t = 5 s: then by id
+            assert [r["id"] for r in update["rows"]] == ["f1/m0"] and update["order"] == ["f1/m0", "f2/m2"]
+        assert server.watched() == set()
+        with urllib.request.urlopen(base + "events/machine?id=f2/m2", timeout=10) as stream:
+            assert json.loads(stream.readline().decode().removeprefix("data: "))["row"]["id"] == "f2/m2"
+            assert server.watched() == {"f2/m2"}  # the service follows its sensors while the page is open
+            assert server.streams >= 1  # (a stream whose page closed counts until its next write fails)
+
+
+def test_a_machine_keeps_its_last_seconds_of_sensor_samples_thinned_for_its_page() -> None:
+    import numpy as np
+
+    live = FleetLive(sensor_seconds=2.0, sensor_points=50)
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy"))
+    assert live.machine("f1/m0")["sensors"] is None and live.sensor_chunks("f1/m0") == 0
+    for k in range(40):  # 4 s of 0.1 s chunks at 200 Hz
+        t = (np.arange(20) + 20 * k) / 200.0
+        flow = np.where(t > 3.9, np.nan, t)
+        live.add_sensors("f1", "m0", t, {"flow": flow, "speed": 2 * t, "state": np.array(["healthy"] * 20, object)})
+    sensors = live.machine("f1/m0")["sensors"]
+    assert live.sensor_chunks("f1/m0") == 40 and sensors["units"] == {"flow": "L/min", "speed": "rad/s"}
+    t = np.array(sensors["t"])
+    assert t[-1] == 799 / 200 and t[0] >= 4.0 - 2.1 and len(t) <= 50  # the last ~2 s, thinned, newest kept
+    assert sensors["channels"]["speed"] == pytest.approx(2 * t)
+    assert sensors["channels"]["flow"][-1] is None  # NaN is sent as null
+    live.add_sensors("f1", "m0", np.arange(20) / 200.0, {"flow": np.zeros(20), "speed": np.zeros(20)})
+    assert live.machine("f1/m0")["sensors"]["t"][0] == 0.0  # a restarted stream starts again
+    with pytest.raises(ParameterError, match="sensor_seconds must be > 0"):
+        FleetLive(sensor_seconds=0.0)
+
+
+def test_a_port_in_use_is_one_clear_error(live: FleetLive) -> None:
+    from services.web.server import WebServer
+
+    with WebServer(live, threading.Condition()) as server:
+        port = int(server.url.rsplit(":", 1)[1].strip("/"))
+        with pytest.raises(ParameterError, match=f"Got 127.0.0.1:{port}: .*Pick another --port"):
+            WebServer(live, threading.Condition(), port=port)
+
+
+def test_a_timeline_keeps_the_last_verdicts_in_order_and_states_that_come_later() -> None:
+    from hydrowatch.web.live import Timeline
+
+    timeline = Timeline(3)
+    assert timeline.to_dict()["state"] == [] and len(timeline) == 0
+    timeline.append(0.0, 5.0, "healthy", 0.9, {"healthy": 0.9, "load_alert": 0.1})
+    timeline.append(5.0, 10.0, "invalid", 0.0, {})
+    timeline.append(10.0, 15.0, "unknown", 0.0, {"healthy": 0.5, "load_alert": 0.5})
+    timeline.append(15.0, 20.0, "motor_alert", 0.8, {"healthy": 0.1, "load_alert": 0.1, "motor_alert": 0.8})
+    d = timeline.to_dict()
+    assert len(timeline) == 3 and timeline.count == 4
+    assert d["start_s"] == [5.0, 10.0, 15.0] and d["end_s"] == [10.0, 15.0, 20.0]
+    assert d["state"] == ["invalid", "unknown", "motor_alert"] and d["level"] == ["invalid", "unknown", "alert"]
+    assert d["p"] == [0.0, 0.0, 0.8]
+    assert d["probabilities"] == {"healthy": [None, 0.5, 0.1], "load_alert": [None, 0.5, 0.1],
+                                  "motor_alert": [None, None, 0.8]}
