@@ -167,8 +167,8 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     fleet = ModelBundle.load(tmp_path / "fleet")
     units = Commissionings(tmp_path / "units", fleet)
     assert units.for_machine("m7").version == info["version"] and units.for_machine("m8") is None
-    scorer = OnlineScorer(fleet, smoothing=12, unit_model=lambda m: getattr(units.for_machine(m.split("/")[1]),
-                                                                            "condition", None))
+    scorer = OnlineScorer(fleet, smoothing=12, unit_method=lambda m: getattr(units.for_machine(m.split("/")[1]),
+                                                                             "health_method", None))
     cols = scorer.columns
     chunk = sensor_chunk_from_arrays(test.t, {c: test[c] for c in cols})
     got = scorer.update(chunks_from_batches(["t/m7", "t/m8"], [chunk, chunk], cols))
@@ -177,8 +177,8 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     # pooled by its own model's boxes (they differ from the fleet model's), so the probabilities agree too
     # a worn m7 is pooled and judged by its own model (boxes, open-set pooling), as `score` does it
     chunk = sensor_chunk_from_arrays(worn.t, {c: worn[c] for c in cols})
-    scorer = OnlineScorer(fleet, smoothing=12, unit_model=lambda m: getattr(units.for_machine(m.split("/")[1]),
-                                                                            "condition", None))
+    scorer = OnlineScorer(fleet, smoothing=12, unit_method=lambda m: getattr(units.for_machine(m.split("/")[1]),
+                                                                             "health_method", None))
     got = scorer.update(chunks_from_batches(["t/m7"], [chunk], cols))
     assert len(got) == len(scored_worn["windows"])
     for v, w in zip(got, scored_worn["windows"]):

@@ -18,11 +18,11 @@ from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.io.codec import sensor_chunk_from_arrays
+from hydrowatch.methods.entropy.reference import SensorReference
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.training.online import Chunk, OnlineScorer, chunks_from_batches
 from hydrowatch.training.options import TrainingSettings
-from hydrowatch.training.reference import SensorReference
 from hydrowatch.training.scoring import score_recording
 from hydrowatch.training.trainer import train
 

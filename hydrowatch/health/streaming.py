@@ -48,6 +48,20 @@ class WindowResult:
         return self.entropies.ravel()
 
 
+def closed_window(features: RelativeEntropyFeatures, ordered: np.ndarray,
+                  sensors: list[int]) -> tuple[np.ndarray, str | None]:
+    """Relative entropies (n_sensors, n_states), nats, and the invalid reason (or None) of one closed window.
+
+    ``ordered`` (n_sensors, window), C-contiguous, oldest sample first: prediction errors of the
+    ``sensors`` (indices into ``features.sensors_``). The reason names the first invalid sensor.
+    """
+    rows = [ordered[j][np.newaxis, :] for j in range(ordered.shape[0])]
+    entropies = np.stack([features.sensor_entropies(r, i)[0] for r, i in zip(rows, sensors)])
+    reasons = [invalid_reasons(r)[0] if np.isnan(e).any() else None for r, e in zip(rows, entropies)]
+    names = [features.sensors_[i] for i in sensors]
+    return entropies, next((f"{n}: {r}" for n, r in zip(names, reasons) if r), None)
+
+
 class _Ring:
     """Ring buffer of the last ``window`` samples of ``width`` columns that closes a window every ``hop``."""
 
@@ -102,11 +116,7 @@ class _Windows:
 
     def _close(self, index: int, ordered: np.ndarray) -> None:
         start = index * self._ring.hop
-        rows = [ordered[j][np.newaxis, :] for j in range(ordered.shape[0])]
-        entropies = np.stack([self.features.sensor_entropies(r, i)[0] for r, i in zip(rows, self._sensors)])
-        reasons = [invalid_reasons(r)[0] if np.isnan(e).any() else None for r, e in zip(rows, entropies)]
-        names = [self.features.sensors_[i] for i in self._sensors]
-        reason = next((f"{n}: {r}" for n, r in zip(names, reasons) if r), None)
+        entropies, reason = closed_window(self.features, ordered, self._sensors)
         self._results.append(WindowResult(index, start, start + self._ring.window, self._shape(entropies), reason))
 
     def _shape(self, entropies: np.ndarray) -> np.ndarray:

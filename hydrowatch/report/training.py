@@ -1,7 +1,8 @@
 """Artifacts of a training run: plots, the relative-entropy table (as table 6.1), evaluation JSON.
 
-For a parity run the table holds the median relation scores (rows: relations) instead, and the
-reference-model plots (error distributions, residual correlations, pole-zero maps) are left out.
+The table's rows are the method's ``kl`` rows (sensors for the entropy method, relations for the
+parity method: median relation scores); the reference-model plots (error distributions, residual
+correlations, pole-zero maps) are drawn when the run has reference models (the entropy method).
 Accuracy checks on other commands (``evaluation["checks"]``, see
 :func:`hydrowatch.training.pipeline.train_and_track`) add one confusion matrix each.
 
@@ -25,8 +26,8 @@ from hydrowatch.results import TrainingResult
 
 
 def run_name(result: TrainingResult) -> str:
-    """``parity``, or the reference kind (``narx``, ``bj``) of an entropy run."""
-    return "parity" if result.bundle.method == "parity" else str(result.bundle.manifest["reference"])
+    """The method's name (``parity``, …), or the reference kind (``narx``, ``bj``) of a run with reference models."""
+    return str(result.bundle.manifest.get("reference") or result.bundle.method)
 
 
 def entropy_table(result: TrainingResult) -> tuple[list[str], list[list[Any]]]:
@@ -42,7 +43,7 @@ def entropy_table(result: TrainingResult) -> tuple[list[str], list[list[Any]]]:
         for j, row in enumerate(result.bundle.kl_rows):
             median = np.nanmedian(d[:, j, :], axis=0).tolist() if d.shape[0] else [float("nan")] * len(states)
             rows.append([true_state, row, *median])
-    return ["window state", "relation" if result.bundle.method == "parity" else "sensor", *states], rows
+    return ["window state", result.bundle.health_method.row_label, *states], rows
 
 
 def _pictures(result: TrainingResult) -> dict[str, bytes]:
@@ -53,13 +54,13 @@ def _pictures(result: TrainingResult) -> dict[str, bytes]:
         out[f"confusion_{check['command']}.png"] = confusion_png(
             check["confusion_matrix"], check["labels"], f"{run_name(result)}, {check['command']} command, "
                                                         f"seed {check['seed']}")
-    if result.bundle.method == "parity":
+    if not result.reference:  # no reference models (parity, stats): no error distributions to draw
         return out
     for j, sensor in enumerate(result.bundle.sensors):
         out[f"errors_{sensor}.png"] = error_distributions_png(
             {s: e[:, j] for s, e in result.base_errors.items()}, sensor, UNITS[sensor])
     out["residual_correlations.png"] = correlations_png({s: r["correlations"] for s, r in result.reference.items()})
-    if result.bundle.manifest["reference"] == "bj":
+    if result.bundle.manifest.get("reference") == "bj":
         roots = {s: r["summary"]["validation"]["roots"] for s, r in result.reference.items()}
         out["pole_zero.png"] = pole_zero_png(roots)
     return out
@@ -86,21 +87,14 @@ def write_training_artifacts(result: TrainingResult, folder: str | Path) -> list
 def training_section(result: TrainingResult, title: str) -> Section:
     """An HTML section with the training run's numbers, tables and plots."""
     ev = result.evaluation
-    if result.bundle.method == "parity":
-        section = Section(title).text(
-            f"Parity method (component relations); test accuracy {ev['test_accuracy']:.4f} on {ev['test_windows']} "
-            f"held-out windows; training took {result.seconds:.0f} s.")
-        caption = ("Median relation score F[r, k] of each state's test windows (1: state k's physics explains the "
-                   "relation as well as a free fit):")
-    else:
-        section = Section(title).text(
-            f"Reference models: {result.bundle.manifest['reference']}; test accuracy {ev['test_accuracy']:.4f} on "
-            f"{ev['test_windows']} held-out windows; training took {result.seconds:.0f} s.")
+    section = Section(title).text(
+        f"{result.bundle.health_method.headline}; test accuracy {ev['test_accuracy']:.4f} on {ev['test_windows']} "
+        f"held-out windows; training took {result.seconds:.0f} s.")
+    if result.reference:
         section.table(["sensor", "NRMSE one step", "residual acf inside bound", "ccf inside bound"],
                       [[s, r["nrmse_one_step"], r["correlations"]["acf_inside"], r["correlations"]["ccf_inside"]]
                        for s, r in result.reference.items()])
-        caption = ("Median relative entropy of each state's windows against every base distribution (nats), "
-                   "as the study's table 6.1:")
+    caption = result.bundle.health_method.table_caption
     section.table(["state", "recall"], [[s, r] for s, r in ev["per_class_recall"].items()])
     header, rows = entropy_table(result)
     section.text(caption)

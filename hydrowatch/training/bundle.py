@@ -1,12 +1,12 @@
-"""A model bundle: the health method's fitted parts + a JSON manifest, in one directory.
+"""A model bundle: one fitted health method + a JSON manifest, in one directory.
 
 Layout::
 
     MODEL_DIR/
       manifest.json         format, version, method, reference kind, states, sensors, window, data, metrics
-      reference/<sensor>.narx.pt | <sensor>.bj.json      method "entropy": reference models
-      health/               base_distributions.json, classifier.npz, open_set.json
-      condition/            method "parity": condition_features.json, decision.json, open_set.json
+      ...                   the method's own files (:meth:`HealthMethod.save
+                            <hydrowatch.methods.base.HealthMethod.save>`): entropy ``reference/`` and
+                            ``health/``, parity ``condition/``, stats ``stats/`` (docs/architecture.md)
 
 A folder of several bundles (``train --method both|all``) holds ``<key>/`` per bundle and
 ``bundles.json`` naming the default one, which :meth:`ModelBundle.load` takes for the folder.
@@ -29,9 +29,8 @@ import numpy as np
 
 from hydrowatch.condition import ConditionModel
 from hydrowatch.errors import DataError
-from hydrowatch.health.model import HealthModel
-from hydrowatch.recording import INPUT, Recording
-from hydrowatch.training.reference import SensorReference
+from hydrowatch.methods import method_class
+from hydrowatch.methods.base import HealthMethod
 
 FORMAT = "hydrowatch.model_bundle"
 FORMAT_VERSION = 1
@@ -46,91 +45,67 @@ class ModelBundle:
 
     Attributes
     ----------
-    references : dict of str to SensorReference
-        One fitted reference model per sensor, in sensor order (empty for the parity method).
-    health : HealthModel or None
-        Fitted base distributions, classifier and open-set rule (entropy method).
+    health_method : HealthMethod
+        The fitted method (:mod:`hydrowatch.methods`).
     manifest : dict
         ``format``, ``format_version``, ``version``, ``method``, ``reference``, ``states``,
         ``sensors``, ``window`` (samples), ``hop``, ``warmup``, ``data`` and ``metrics``.
-    condition : ConditionModel or None
-        Fitted parity features, decision and open-set rule (parity method).
     """
 
-    references: dict[str, SensorReference]
-    health: HealthModel | None
+    health_method: HealthMethod
     manifest: dict[str, Any] = field(default_factory=dict)
-    condition: ConditionModel | None = None
 
     @property
     def method(self) -> str:
-        """``parity`` or ``entropy``."""
-        return "parity" if self.condition is not None else "entropy"
+        """Name of the bundle's method (``parity``, ``entropy``, …)."""
+        return self.health_method.name
 
     @property
     def sensors(self) -> list[str]:
-        """Sensors the model reads, in the order of the prediction-error columns (entropy)."""
-        if self.condition is not None:
-            return list(self.condition.features_.sensors)
-        return list(self.references)
+        """Sensors the model reads."""
+        return self.health_method.sensors
 
     @property
     def kl_rows(self) -> list[str]:
-        """Rows of a window's ``kl`` scores: sensors (relative entropies) or relations (parity scores)."""
-        if self.condition is not None:
-            return list(self.condition.features_.relations_)
-        return self.sensors
+        """Rows of a window's ``kl`` scores: sensors (relative entropies), relations (parity scores), …"""
+        return self.health_method.kl_rows
 
     @property
     def states(self) -> list[str]:
         """Trained health states, in the decision's order."""
-        if self.condition is not None:
-            return list(self.condition.features_.states_)
-        return list(self._health.features_.states_)
+        return self.health_method.states
 
     @property
     def window(self) -> int:
         """Samples per window."""
-        return int((self.condition.features_ if self.condition is not None else self._health.features_).window)
+        return self.health_method.window
 
     @property
     def hop(self) -> int:
         """Samples between window starts."""
-        return int((self.condition.features_ if self.condition is not None else self._health.features_).hop)
+        return self.health_method.hop
 
     @property
     def warmup(self) -> int:
-        """Samples before every sensor's prediction errors count (0 for the parity method)."""
-        return max((r.warmup_ for r in self.references.values()), default=0)
+        """Samples before the first window (the reference models' warm-up; 0 for methods without one)."""
+        return self.health_method.warmup
 
     @property
-    def _health(self) -> HealthModel:
-        if self.health is None:
-            raise DataError("an entropy bundle must hold a health model. Got none; retrain with `hydrowatch train`.")
-        return self.health
+    def condition(self) -> ConditionModel | None:
+        """The condition model of a parity bundle (None for other methods); kept for scripts and tests that read it."""
+        model = getattr(self.health_method, "model", None)
+        return model if isinstance(model, ConditionModel) else None
 
     @property
     def version(self) -> str:
         """Model version carried by every verdict (registry version or content hash)."""
         return str(self.manifest.get("version", "unversioned"))
 
-    def errors(self, recording: Recording) -> np.ndarray:
-        """Prediction errors of every sensor, shape (n, n_sensors); NaN rows during warm-up."""
-        u = recording[INPUT]
-        return np.column_stack([ref.errors(u, recording[s]) for s, ref in self.references.items()])
-
     def save(self, directory: str | Path) -> Path:
         """Write the bundle; the manifest's ``version`` becomes a hash of the model files."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        if self.condition is not None:
-            self.condition.save(d / "condition")
-            files = list((d / "condition").iterdir())
-        else:
-            (d / "reference").mkdir(parents=True, exist_ok=True)
-            files = [ref.save(d / "reference") for ref in self.references.values()]
-            self._health.save(d / "health")
-            files += list((d / "health").iterdir())
+        files = self.health_method.save(d)
         digest = hashlib.sha256()
         for f in sorted(files):
             digest.update(f.read_bytes())
@@ -157,11 +132,7 @@ class ModelBundle:
             )
         if version is not None:
             manifest["version"] = version
-        if manifest.get("method", "entropy") == "parity":
-            return cls({}, None, manifest, ConditionModel.load(d / "condition"))
-        kind = manifest["reference"]
-        references = {s: SensorReference.load(d / "reference", s, kind) for s in manifest["sensors"]}
-        return cls(references, HealthModel.load(d / "health"), manifest)
+        return cls(method_class(manifest.get("method", "entropy")).load(d, manifest), manifest)
 
 
 def write_index(directory: str | Path, keys: list[str]) -> Path:

@@ -216,7 +216,7 @@ def plan_chunk(t: np.ndarray, x: np.ndarray, columns: Sequence[str],
         if i > start:
             ops.append(Segment(t[start:i], x[start:i]))
         if bad[i]:
-            names = [c for c, v in zip(columns, x[i]) if not np.isfinite(v)] or ["t"]
+            names = [c for c, v in zip(columns, x[i]) if not np.isfinite(v) and c not in optional] or ["t"]
             ops.append(Break(f"NaN in {', '.join(names)} at t={t[i]:.3f} s", float(t[i])))
             start = i + 1
         elif i >= start:

@@ -1,7 +1,8 @@
 """Commissioning bundles: a fleet's model bundle adapted to one machine, stored and found per machine id.
 
 :func:`commission_bundle` turns a parity bundle and healthy recordings of one machine into that
-machine's bundle (:func:`hydrowatch.condition.commission.commission`); its manifest gains
+machine's bundle (:meth:`HealthMethod.commission <hydrowatch.methods.base.HealthMethod.commission>`,
+for parity :func:`hydrowatch.condition.commission.commission`); its manifest gains
 
     "commissioned": {"machine": ID, "base_version": FLEET_VERSION, "sources": [...], "unit": {...}}
 
@@ -23,10 +24,7 @@ import copy
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from hydrowatch.condition import windows_from_recording
-from hydrowatch.condition.commission import CommissioningError, commission
+from hydrowatch.condition.commission import CommissioningError
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import Recording
@@ -41,30 +39,18 @@ def commission_bundle(bundle: ModelBundle, recordings: list[Recording], machine:
     Raises
     ------
     CommissioningError
-        For an entropy bundle, an empty machine id, or recordings that cannot commission the unit
-        (too short, a command that never loads the parts, a fault already present).
+        For a method that cannot be commissioned (entropy), an empty machine id, or recordings that cannot
+        commission the unit (too short, a command that never loads the parts, a fault already present).
     """
     if not machine.strip():
         raise CommissioningError("--machine must name the machine (its id in the plant's messages). Got ''.")
-    if bundle.condition is None:
-        raise CommissioningError("commissioning adapts parity bundles (train --method parity, the default). Got an "
-                                 "entropy bundle: its base distributions need the unit's own fault recordings; "
-                                 "train it on this unit instead.")
-    temperature = bool(bundle.manifest.get("temperature"))
-    parts = []
-    for rec in recordings:
-        if temperature and "temperature" not in rec.channels:
-            raise CommissioningError("the recording must carry 'temperature': the model was trained with it. Got "
-                                     f"channels {sorted(rec.channels)}.", str(rec.meta.get("source", "")) or None)
-        parts.append(windows_from_recording(rec, bundle.window, bundle.hop, temperature=temperature))
-    windows = np.concatenate(parts) if parts else np.empty((0, bundle.window, 4))
-    result = commission(bundle.condition, windows)
+    method, unit = bundle.health_method.commission(recordings)
     manifest: dict[str, Any] = copy.deepcopy(bundle.manifest)
     manifest.pop("version", None)
     sources = [str(r.meta.get("source", "")) for r in recordings]
     manifest["commissioned"] = {"machine": machine, "base_version": bundle.version, "sources": sources,
-                                "unit": result.summary()}
-    return ModelBundle({}, None, manifest, result.model)
+                                "unit": unit}
+    return ModelBundle(method, manifest)
 
 
 REGISTRY_ALIAS = "champion"

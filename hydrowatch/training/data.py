@@ -9,7 +9,6 @@ must be among them (it trains the reference models).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +18,10 @@ from hydrowatch.io import read_recording
 from hydrowatch.io.mcap_io import mcap_finished
 from hydrowatch.io.recordings import SUFFIXES
 from hydrowatch.log import event, get_logger
+from hydrowatch.methods.base import HEALTHY, ordered_states
 from hydrowatch.recording import Recording
 
-HEALTHY = "healthy"
+__all__ = ["HEALTHY", "label_runs", "ordered_states", "read_labelled", "recording_files"]
 _log = get_logger(__name__)
 
 
@@ -94,8 +94,3 @@ def read_labelled(path: str | Path, *, skip_unreadable: bool = False) -> dict[st
             str(path),
         )
     return grouped
-
-
-def ordered_states(states: Sequence[str]) -> list[str]:
-    """``healthy`` first, then the other states in the order given."""
-    return [HEALTHY, *[s for s in states if s != HEALTHY]]

@@ -11,6 +11,7 @@ from typing import Any
 
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.plan import DataPlan
+from hydrowatch.methods import method_class, method_names
 
 DEFAULT_EXPERIMENT = "hydrowatch"
 DEFAULT_MODEL_NAME = "hydrowatch"
@@ -19,11 +20,11 @@ DEFAULT_NARX: dict[str, Any] = {"input_delays": 4, "output_delays": 4, "hidden":
 """Short NARX of the demo (the study's Table 4.5 network is 15/15/35: ``--narx 15,15,35``)."""
 DEFAULT_BJ: dict[str, Any] = {"nb": 3, "nf": 3, "nc": 2, "nd": 2, "delay": 0}
 """Box-Jenkins orders of every sensor unless given."""
-METHODS = ("parity", "entropy")
-"""Health methods: ``parity`` (component relations, :mod:`hydrowatch.condition`) and ``entropy``
-(the study's reference models + relative entropies). ``parity`` is the default: it measures best
-on a working duty cycle (docs/health-pipeline.md)."""
-DEFAULT_METHOD = "parity"
+METHODS = method_names()
+"""Health methods (:mod:`hydrowatch.methods`): ``parity`` (component relations, :mod:`hydrowatch.condition`),
+``entropy`` (the study's reference models + relative entropies), and any other registered. ``parity`` is the
+default: it measures best on a working duty cycle (docs/health-pipeline.md)."""
+DEFAULT_METHOD = METHODS[0]
 GROUPS = ("both", "all")
 """``--method`` values that train several bundles, one run each (:func:`settings_list_from_args`)."""
 DEFAULT_CLI_METHOD = "all"
@@ -38,8 +39,8 @@ class TrainingSettings:
 
     Parameters
     ----------
-    method : {"parity", "entropy"}
-        Health method (:data:`METHODS`).
+    method : str
+        Health method (:data:`METHODS`: ``parity``, ``entropy``, …).
     reference : {"narx", "bj"}
         Kind of the reference models (``entropy`` method).
     narx, bj : dict
@@ -65,22 +66,19 @@ class TrainingSettings:
 
     @property
     def name(self) -> str:
-        """Short name of what is trained: ``parity``, or the reference kind (``narx``, ``bj``) for ``entropy``."""
-        return "parity" if self.method == "parity" else self.reference
+        """Short name of what is trained: the method's, e.g. ``parity``, or the reference kind (``narx``, ``bj``)
+        for ``entropy``."""
+        return method_class(self.method).run_name(self)
 
     def reference_params(self) -> dict[str, Any]:
         """Parameters of the chosen reference model kind."""
         return dict(self.narx if self.reference == "narx" else self.bj)
 
     def to_dict(self) -> dict[str, Any]:
-        """Flat JSON-able form (MLflow parameters, manifest)."""
+        """Flat JSON-able form (MLflow parameters, manifest): the method's settings, then the data plan's."""
         if self.method not in METHODS:
             raise ParameterError(f"method must be one of {METHODS}. Got {self.method!r}.")
-        out: dict[str, Any] = {"method": self.method}
-        if self.method == "entropy":
-            out.update({"reference": self.reference, "distribution": self.distribution,
-                        "classifier_hidden": self.hidden, "seed": self.seed})
-            out.update({f"{self.reference}.{k}": v for k, v in self.reference_params().items()})
+        out = method_class(self.method).settings_dict(self)
         out.update({f"plan.{k}": v for k, v in asdict(self.plan).items()})
         return out
 
@@ -106,6 +104,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--method", choices=(*METHODS, *GROUPS), default=DEFAULT_CLI_METHOD,
                    help=f"health method: {DEFAULT_METHOD} (component relations, the verdicts hydrowatch "
                         "recommends), entropy (the study's reference models + relative entropies, with --reference), "
+                        f"{''.join(f'{m}, ' for m in METHODS[2:])}"
                         "both (entropy, then parity), all (default: entropy with Box-Jenkins, entropy with NARX, "
                         "then parity; three runs to compare in MLflow)")
     g.add_argument("--reference", choices=("narx", "bj"), default="narx",

@@ -1,12 +1,12 @@
 """Offline scoring of recordings window by window: the ``hydrowatch score --json`` objects (contract).
 
-Entropy bundles: each recording's prediction errors (after the reference models' warm-up) are cut
-into windows of the bundle's length and hop; every window gets a verdict
-(:func:`hydrowatch.health.verdict.judge`) and its relative entropies per sensor and state (``kl``).
-Parity bundles: the raw signals are cut into windows from the first sample
-(:func:`hydrowatch.condition.windows_from_recording`); every window gets the condition model's
-verdict and, in ``kl``, its relation scores per relation and state (F[r, k] ≥ 1, about 1 for the
-state whose physics explains the window, docs/command-invariance.md). A labelled recording also gets its accuracy:
+The bundle's method scores the recording (:meth:`HealthMethod.score <hydrowatch.methods.base.HealthMethod.score>`):
+entropy bundles cut the prediction errors (after the reference models' warm-up) into windows and give
+each its relative entropies per sensor and state (``kl``); parity bundles cut the raw signals into
+windows from the first sample and give, in ``kl``, the relation scores per relation and state
+(F[r, k] ≥ 1, about 1 for the state whose physics explains the window, docs/command-invariance.md)
+and a degradation index. This module turns those into the contract's objects. A labelled recording
+also gets its accuracy:
 windows whose label is a trained state count as right when the verdict names it; windows of a
 state the model was not trained on count as right when the verdict is ``unknown``; ``invalid``
 windows are left out of the accuracy (they are counted).
@@ -19,14 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from hydrowatch.condition import windows_from_recording
-from hydrowatch.condition.degradation import Degradation, features_degradation
+from hydrowatch.condition.degradation import Degradation
 from hydrowatch.condition.forecast import forecast_alert
-from hydrowatch.condition.stream import POOLED_WINDOWS
 from hydrowatch.errors import ParameterError
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.verdict import INVALID, UNKNOWN, Verdict
+from hydrowatch.verdict import INVALID, UNKNOWN
 
 
 def window_truth(recording: Recording, starts: np.ndarray, window: int, trained: list[str]) -> list[str | None]:
@@ -50,11 +48,11 @@ def window_truth(recording: Recording, starts: np.ndarray, window: int, trained:
 
 
 def smoothing_for(bundle: ModelBundle, requested: int | None = None) -> int:
-    """Windows each verdict pools: ``requested``, else :data:`~hydrowatch.condition.stream.POOLED_WINDOWS`
-    for a parity bundle and 1 for an entropy bundle (its verdicts are per window)."""
+    """Windows each verdict pools: ``requested``, else the method's default (parity:
+    :data:`~hydrowatch.condition.stream.POOLED_WINDOWS`; 1 for methods whose verdicts are per window)."""
     if requested is not None:
         return requested
-    return POOLED_WINDOWS if bundle.condition is not None else 1
+    return bundle.health_method.default_smoothing
 
 
 def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 1) -> dict[str, Any]:
@@ -62,7 +60,7 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
 
     ``smoothing`` (parity bundles): valid windows whose evidence each verdict pools, the window
     itself and the ones before it (:meth:`ConditionModel.judge`; 1: each window alone, as the
-    scorer service's ``--smoothing``). Entropy bundles take only 1.
+    scorer service's ``--smoothing``). Bundles of methods that do not pool (entropy) take only 1.
 
     ``windows[i]`` has ``start_s`` (time of its first sample, s), ``state``, ``probability``,
     ``probabilities`` (state → p), ``kl`` (sensor → state → relative entropy, nats) and, for
@@ -73,9 +71,10 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
     ``model_version`` and, for parity bundles, ``forecast`` (fault → :meth:`Forecast.to_dict
     <hydrowatch.condition.forecast.Forecast.to_dict>`, :func:`degradation_forecast`).
     """
-    if int(smoothing) != smoothing or smoothing < 1 or (smoothing > 1 and bundle.condition is None):
-        raise ParameterError(f"smoothing must be an integer >= 1, and 1 for an entropy bundle. Got {smoothing!r} "
-                             f"({bundle.method} bundle); pooling windows is the parity method's.")
+    if int(smoothing) != smoothing or smoothing < 1 or (smoothing > 1 and not bundle.health_method.pools):
+        raise ParameterError(f"smoothing must be an integer >= 1, and 1 for a bundle whose method does not pool "
+                             f"(entropy). Got {smoothing!r} ({bundle.method} bundle); pooling windows is the parity "
+                             "method's.")
     window = bundle.window
     warmup = bundle.warmup
     t = recording.t
@@ -90,7 +89,8 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
         })
         truths: list[str | None] = [None]
     else:
-        starts, verdicts, kl, degradation = _window_scores(bundle, recording, smoothing)
+        scored = bundle.health_method.score(recording, smoothing)
+        starts, verdicts, kl, degradation = scored.starts, scored.verdicts, scored.scores, scored.degradation
         truths = window_truth(recording, starts + warmup, window, bundle.states)
         for i, (start, verdict) in enumerate(zip(starts.tolist(), verdicts)):
             item: dict[str, Any] = {"start_s": float(t[start + warmup]), **verdict.to_dict()}
@@ -127,26 +127,6 @@ def degradation_forecast(windows: list[dict[str, Any]], degradation: Degradation
     t = np.array([w["start_s"] for w in windows])
     return {f: forecast_alert(t, degradation.history(f)).to_dict() for f in degradation.value
             if np.isfinite(degradation.value[f]).any()}
-
-
-def _window_scores(bundle: ModelBundle, recording: Recording,
-                   smoothing: int = 1) -> tuple[np.ndarray, list[Verdict], np.ndarray, Degradation | None]:
-    """Window starts (after the warm-up), verdicts, ``kl`` scores, shape (n_windows, n_rows, n_states), and the
-    degradation index of parity bundles (None for entropy bundles: no physical estimate, docs/degradation.md)."""
-    if bundle.condition is not None:
-        model = bundle.condition
-        temperature = bool(bundle.manifest.get("temperature")) and "temperature" in recording.channels
-        raw = windows_from_recording(recording, bundle.window, bundle.hop, temperature=temperature)
-        rows, valid, estimates = model.features_.evidence_and_estimates(raw)  # one fit of the relations serves all
-        verdicts, scores = model.judge_with_scores(raw, smoothing, rows)
-        starts = model.features_.window_starts(len(recording))
-        return (starts, verdicts, scores.reshape(scores.shape[0], len(bundle.kl_rows), len(bundle.states)),
-                features_degradation(model.features_, raw, estimated=(valid, estimates)))
-    health = bundle.health
-    assert health is not None
-    errors = bundle.errors(recording)[bundle.warmup:]
-    starts, verdicts = health.score(errors)
-    return starts, verdicts, health.features_.window_entropies(errors), None
 
 
 def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:

@@ -43,7 +43,7 @@ from hydrowatch.log import event, get_logger
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
     from hydrowatch.bus import Message
-    from hydrowatch.condition import ConditionModel
+    from hydrowatch.methods.base import HealthMethod
     from hydrowatch.training.bundle import ModelBundle
     from hydrowatch.training.online import ChunkBatch, OnlineScorer, WindowVerdict
 
@@ -161,8 +161,8 @@ class _Units:
         from hydrowatch.training.commissioning import Commissionings
 
         source = args.commissioning
-        self.found = None if source is None or fleet.method != "parity" else Commissionings(source, fleet,
-                                                                                              args.tracking_uri)
+        self.found = None if source is None or not fleet.health_method.commissionable else Commissionings(
+            source, fleet, args.tracking_uri)
         self.fleet = fleet
 
     def bundle(self, stream: str) -> ModelBundle:
@@ -170,11 +170,11 @@ class _Units:
         found = None if self.found is None else self.found.for_machine(stream.split("/", 1)[1])
         return found or self.fleet
 
-    def unit_model(self) -> Callable[[str], ConditionModel | None] | None:
-        """What ``OnlineScorer(unit_model=...)`` takes (None without commissionings)."""
+    def unit_method(self) -> Callable[[str], HealthMethod | None] | None:
+        """What ``OnlineScorer(unit_method=...)`` takes (None without commissionings)."""
         if self.found is None:
             return None
-        return lambda stream: self.bundle(stream).condition
+        return lambda stream: self.bundle(stream).health_method
 
 
 def _publish(publisher: Publisher, units: _Units, verdicts: list[WindowVerdict]) -> None:
@@ -193,10 +193,10 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
     from hydrowatch.training.online import OnlineScorer
     from hydrowatch.training.scoring import smoothing_for
 
-    # an entropy bundle cannot pool windows: its verdicts are per window
-    parity = model.bundle.method == "parity"
-    return OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing) if parity else 1,
-                        stagger=args.stagger, unit_model=units.unit_model())
+    # a method that does not pool (entropy) judges each window alone, whatever --smoothing says
+    pools = model.bundle.health_method.pools
+    return OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing) if pools else 1,
+                        stagger=args.stagger, unit_method=units.unit_method())
 
 
 def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | None:

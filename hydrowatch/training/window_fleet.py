@@ -1,9 +1,13 @@
-"""The parity method online for a whole fleet: one array row per machine, windows judged as they close.
+"""The online fleet driver of every health method: one array row per machine, windows judged as they close.
 
-:class:`ParityStreams` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for a parity
-bundle. Per machine it keeps a row of one fleet-wide array of raw samples (the window in progress,
-``window × n_columns`` floats) and a few counters in fleet-wide vectors, so an update of 1000
-machines' clean chunks is a handful of NumPy operations, not 1000 Python objects:
+:class:`WindowFleet` is what :class:`~hydrowatch.training.online.OnlineScorer` runs for the bundle's
+method, whose streaming part is a :class:`~hydrowatch.methods.base.WindowJudge` (parity, stats: raw
+windows) or a :class:`~hydrowatch.methods.base.StreamEngine` (entropy: every clean segment is first
+turned into values, the reference models' prediction errors, batched over machines with each
+machine's state; the windows start where the values are finite, after the warm-up). Per machine it
+keeps a row of one fleet-wide array (the window in progress, ``window × width`` floats) and a few
+counters in fleet-wide vectors, so an update of 1000 machines' clean chunks is a handful of NumPy
+operations, not 1000 Python objects:
 
 1. the chunks (a :class:`~hydrowatch.training.chunks.ChunkBatch`) are checked all at once: a
    machine's only chunk in the update, every column present (or defaulted), finite, regular and
@@ -12,32 +16,26 @@ machines' clean chunks is a handful of NumPy operations, not 1000 Python objects
 2. anything else (a gap, NaN, a late chunk, several chunks of one machine) goes through
    :func:`~hydrowatch.training.chunks.plan_chunk` machine by machine, as before: a break makes the
    window in progress ``invalid`` with its reason and restarts the machine's window;
-3. windows that close are copied out and judged by the condition model in batches of at most
-   ``batch`` windows (one :meth:`ConditionFeatures.transform_evidence` call per batch): the verdict
-   from the window alone (``smoothing`` 1) or pooled over the machine's last ``smoothing`` valid
-   windows (one :class:`~hydrowatch.condition.stream.ConditionStream` per machine, judged for all
-   machines in one :func:`~hydrowatch.condition.stream.judge_streams` call). A break does not flush
-   the pooled evidence (as :class:`ConditionStream` skips invalid windows).
+3. windows that close are copied out and handed to the method's judge in batches of at most
+   ``batch`` windows (the parity judge pools a machine's recent windows when asked,
+   :mod:`hydrowatch.methods.parity.online`).
 
 With ``stagger`` each machine's windows start at a phase of its own after its stream (re)starts,
-so a fleet started in one instant does not close every window in the same update.
-
-Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
+so a fleet started in one instant does not close every window in the same update (not for a
+stream engine whose ``staggers`` is False: the entropy method's windows start after its warm-up).
 """
 
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from hydrowatch.condition.estimates import TEMPERATURE, WIDTH
-from hydrowatch.condition.model import ConditionModel
-from hydrowatch.condition.oil import temperature_known
-from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
+from hydrowatch.methods.base import StreamEngine, WindowJudge
 from hydrowatch.training.chunks import (
     DT,
     Break,
@@ -49,8 +47,6 @@ from hydrowatch.training.chunks import (
     optional_columns,
     plan_chunk,
 )
-from hydrowatch.training.engines import ParityEngine
-from hydrowatch.verdict import Verdict
 
 
 @dataclass
@@ -63,17 +59,14 @@ class _Closed:
     samples: np.ndarray
 
 
-class ParityStreams:
-    """Raw windows of many machines, judged by a parity bundle's condition model as they close (module docstring).
+class WindowFleet:
+    """Raw windows of many machines, handed to a method's judge as they close (module docstring).
 
     Parameters
     ----------
-    engine : ParityEngine
-        The bundle's model, columns, defaults, window and hop.
-    shape : (int, int)
-        (n_relations, n_states) of each window's ``kl`` scores.
-    smoothing : int, default 1
-        Valid windows of a machine pooled in each verdict (1: each window alone).
+    judge : WindowJudge or StreamEngine
+        The method's streaming part: its columns, defaults, window, hop and ``judge`` (and, for a stream
+        engine, ``width``, ``new_states`` and ``values``).
     batch : int, default 64
         Most windows judged in one call.
     stagger : bool, default False
@@ -82,27 +75,22 @@ class ParityStreams:
         close their windows spread over the hop instead of all in one update (the judging work of
         the whole fleet at once), at the price of up to one hop of samples unjudged after each
         (re)start. False: windows start at the stream's first sample (as batch scoring does).
-    unit_model : callable, optional
-        Machine (``fleet/machine``) → its commissioned :class:`ConditionModel`, or None for the
-        fleet model (:class:`hydrowatch.training.commissioning.Commissionings`). A commissioned
-        model shares the fleet model's states, but its boxes (which pooling clips to) and its open-set
-        pooling differ: each machine is pooled and judged by its own model.
     """
 
-    def __init__(self, engine: ParityEngine, shape: tuple[int, int], *, smoothing: int = 1, batch: int = 64,
-                 stagger: bool = False, unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
-        if int(smoothing) != smoothing or smoothing < 1:
-            raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
+    def __init__(self, judge: WindowJudge, *, batch: int = 64, stagger: bool = False) -> None:
         if int(batch) != batch or batch < 1:
             raise ParameterError(f"batch must be an integer >= 1. Got {batch!r}; 64 is the default.")
-        self.model, self.columns, self.defaults = engine.model, list(engine.columns), dict(engine.defaults)
-        self.window, self.hop, self.shape = engine.window, engine.hop, shape
-        self.smoothing, self.batch, self.stagger = int(smoothing), int(batch), bool(stagger)
-        self.unit_model = unit_model
+        self.judge, self.columns, self.defaults = judge, list(judge.columns), dict(judge.defaults)
+        self.window, self.hop = judge.window, judge.hop
+        self.engine = judge if isinstance(judge, StreamEngine) else None
+        self.batch = int(batch)
+        self.stagger = bool(stagger) and (self.engine is None or bool(self.engine.staggers))
+        width = len(self.columns) if self.engine is None else int(self.engine.width)
         self._slot: dict[str, int] = {}
         self._names: list[str] = []
-        self._pools: list[ConditionStream | None] = []
-        self._buffer = np.empty((0, self.window, len(self.columns)))
+        self._states: list[Any] = []
+        """Each machine's stream-engine state (empty without an engine)."""
+        self._buffer = np.empty((0, self.window, width))
         self._fill = np.zeros(0, dtype=np.int64)
         """Samples in each machine's window in progress."""
         self._skip = np.zeros(0, dtype=np.int64)
@@ -117,6 +105,10 @@ class ParityStreams:
         """Time of the first sample since the stream (re)started, s (NaN: none yet)."""
         self._next_t = np.zeros(0)
         """When each machine's next sample is expected, s (NaN: anything goes)."""
+        self._seen = np.zeros(0, dtype=np.int64)
+        """Samples received since the stream (re)started, the warm-up included."""
+        self._start_t = np.zeros(0)
+        """Time of the first sample received since the stream (re)started, s (NaN: none yet)."""
         self.samples = 0
         """Samples fed so far, over every machine."""
 
@@ -134,29 +126,56 @@ class ParityStreams:
             if m in missing and m not in slot:
                 slot[m] = len(self._names)
                 self._names.append(m)
-                self._pools.append(None)
+                if self.engine is not None:
+                    self._states.append(self.engine.new_states())
         n = len(self._names)
         if n > self._fill.size:
             cap = n if self._fill.size == 0 else max(n, 2 * self._fill.size)
             grow = cap - self._fill.size
             self._buffer = np.concatenate([self._buffer, np.empty((grow, *self._buffer.shape[1:]))])
-            self._fill, self._skip, self._fed, self._count, self._phase = (
+            self._fill, self._skip, self._fed, self._count, self._phase, self._seen = (
                 np.concatenate([a, np.zeros(grow, dtype=np.int64)])
-                for a in (self._fill, self._skip, self._fed, self._count, self._phase))
-            self._t0, self._next_t = (np.concatenate([a, np.full(grow, np.nan)]) for a in (self._t0, self._next_t))
+                for a in (self._fill, self._skip, self._fed, self._count, self._phase, self._seen))
+            self._t0, self._next_t, self._start_t = (np.concatenate([a, np.full(grow, np.nan)])
+                                                     for a in (self._t0, self._next_t, self._start_t))
         if missing and self.stagger:
             for s in range(n - len(missing), n):
                 self._phase[s] = self._skip[s] = zlib.crc32(self._names[s].encode()) % self.hop
         return np.fromiter(map(slot.__getitem__, machines), dtype=np.int64, count=len(machines))
 
     def _restart(self, slot: int) -> None:
-        self._fill[slot] = self._fed[slot] = self._count[slot] = 0
+        self._fill[slot] = self._fed[slot] = self._count[slot] = self._seen[slot] = 0
         self._skip[slot] = self._phase[slot]
-        self._t0[slot] = np.nan
+        self._t0[slot] = self._start_t[slot] = np.nan
+        if self.engine is not None:
+            self._states[slot] = self.engine.new_states()
 
     # -- feeding ------------------------------------------------------------------------------------
+    def _feed(self, slots: np.ndarray, t: np.ndarray, x: np.ndarray, closed: list[_Closed]) -> None:
+        """Feed clean samples t (m, n), x (m, n, n_columns) of m distinct machines: as they are, or through the
+        stream engine's values, each machine's window starting at its first finite value after a (re)start."""
+        self._seen[slots] += t.shape[1]
+        first = np.isnan(self._start_t[slots])
+        self._start_t[slots[first]] = t[first, 0]
+        if self.engine is None:
+            self._write(slots, t, x, closed)
+            return
+        values = self.engine.values(x, [self._states[s] for s in slots.tolist()])
+        warming = self._fed[slots] == 0
+        if not warming.any():
+            self._write(slots, t, values, closed)
+            return
+        self._next_t[slots] = t[:, -1] + DT
+        if not warming.all():
+            self._write(slots[~warming], t[~warming], values[~warming], closed)
+        for i in np.flatnonzero(warming).tolist():
+            ready = np.flatnonzero(np.all(np.isfinite(values[i]), axis=1))
+            if ready.size:
+                r = int(ready[0])
+                self._write(slots[i:i + 1], t[i:i + 1, r:], values[i:i + 1, r:], closed)
+
     def _write(self, slots: np.ndarray, t: np.ndarray, x: np.ndarray, closed: list[_Closed]) -> None:
-        """Feed clean samples t (m, n), x (m, n, n_columns) of m distinct machines; closed windows go to ``closed``."""
+        """Write samples t (m, n), x (m, n, width) of m distinct machines; closed windows go to ``closed``."""
         m, n = t.shape
         fresh = self._fed[slots] == 0
         self._t0[slots[fresh]] = t[fresh, 0]
@@ -228,8 +247,8 @@ class ParityStreams:
         for n in np.unique(lengths[clean]).tolist():
             group = clean[lengths[clean] == n]
             rows = (batch.offsets[group][:, None] + np.arange(n)).reshape(-1)
-            self._write(slots[group], batch.t[rows].reshape(-1, n),
-                        self._matrix(batch, rows).reshape(group.size, n, -1), closed)
+            self._feed(slots[group], batch.t[rows].reshape(-1, n),
+                       self._matrix(batch, rows).reshape(group.size, n, -1), closed)
         for i in rest.tolist():
             self._plan(batch, int(i), int(slots[i]), closed, out)
         return out + self._judge(closed)
@@ -243,62 +262,28 @@ class ParityStreams:
                                  None if np.isnan(expected) else float(expected), optional_columns(self.defaults))
         for op in ops:
             if isinstance(op, Break):
-                begun = int(self._phase[slot] + self._count[slot] * self.hop)
-                invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
+                if self._fed[slot]:  # the window in progress began at its place after the (re)start
+                    begun = int(self._phase[slot] + self._count[slot] * self.hop)
+                    invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
+                else:  # still warming up: the window would have begun with the stream
+                    invalid = cut_short(self._names[slot], 0, int(self._seen[slot]), float(self._start_t[slot]), op)
                 if invalid is not None:
                     out.append(invalid)
                 self._restart(slot)
             else:
                 one = np.array([slot])
                 if op.t.size:
-                    self._write(one, op.t[None], op.x[None], closed)
+                    self._feed(one, op.t[None], op.x[None], closed)
         self._next_t[slot] = np.nan if next_t is None else next_t
 
     # -- judging ------------------------------------------------------------------------------------
-    def _models(self, machines: list[str]) -> list[ConditionModel]:
-        """Each machine's model: its commissioned one, or the fleet model."""
-        if self.unit_model is None:
-            return [self.model] * len(machines)
-        return [self.unit_model(m) or self.model for m in machines]
-
     def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:
         """Verdicts and ``kl`` scores of closed windows, ``batch`` windows per call, in closing order."""
         out = []
-        features = self.model.features_
-        width = 2 * len(features.feature_names_)
-        temperature = TEMPERATURE in self.columns
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
-            raw = np.stack([c.samples for c in part])
-            models = self._models([self._names[c.slot] for c in part])
-            known = temperature_known(raw, WIDTH) if temperature else np.zeros(len(part), dtype=bool)
-            rows = np.empty((len(part), width + 2 * len(features.states_)))
-            verdicts: list[Verdict | None] = [None] * len(part)
-            for model in {id(m): m for m in models}.values():  # each machine by its own (commissioned) model
-                mine = np.flatnonzero([m is model for m in models])
-                rows[mine] = model.features_.transform_evidence(raw[mine])
-                reasons = model.features_.window_reasons(raw[mine])
-                evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
-                for i, why in zip(mine, reasons):
-                    row, c = rows[i], part[i]
-                    alone = (row[:width], row[:width], row[:width], 1)
-                    if self.smoothing == 1:
-                        evidence.append(alone)
-                        continue
-                    pool = self._pools[c.slot]
-                    if pool is None or pool.model is not model or pool.temperature != bool(known[i]):
-                        # the oil temperature came or went (its boxes differ): the pool starts again
-                        pool = self._pools[c.slot] = ConditionStream(model, n_windows=self.smoothing,
-                                                                     temperature=bool(known[i]))
-                    pool.update_features(row)
-                    got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
-                    evidence.append(got if got is not None else alone)
-                for i, v in zip(mine, judge_streams(model, self.smoothing, evidence, reasons)):
-                    verdicts[i] = v
-            band = rows[:, : width // 2]
-            for c, maybe, s in zip(part, verdicts, band):
-                assert maybe is not None
-                first = c.start
-                out.append(WindowVerdict(self._names[c.slot], c.t0 + first * DT, c.t0 + (first + self.window) * DT,
-                                         maybe, s.reshape(self.shape)))
+            judged = self.judge.judge(np.stack([c.samples for c in part]), [self._names[c.slot] for c in part])
+            for c, (v, s) in zip(part, judged):
+                out.append(WindowVerdict(self._names[c.slot], c.t0 + c.start * DT, c.t0 + (c.start + self.window) * DT,
+                                         v, s))
         return out

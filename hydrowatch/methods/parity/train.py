@@ -1,4 +1,4 @@
-"""The parity method's trainer: labelled recordings in, a parity bundle and its evaluation out.
+"""The parity method trained: labelled recordings in, the fitted condition model and its evaluation out.
 
 Wiring only, the maths lives in :mod:`hydrowatch.condition` (docs/command-invariance.md):
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,12 +28,12 @@ from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
 from hydrowatch.log import event, get_logger
+from hydrowatch.methods.base import data_summary, ordered_states
 from hydrowatch.recording import Recording
-from hydrowatch.results import TrainingResult
-from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.training.data import ordered_states
-from hydrowatch.training.options import TrainingSettings
 from hydrowatch.verdict import UNKNOWN
+
+if TYPE_CHECKING:
+    from hydrowatch.training.options import TrainingSettings
 
 _log = get_logger(__name__)
 TEST_FRACTION = 0.15
@@ -63,8 +63,10 @@ def split_windows(runs: list[Recording], window: int, hop: int, temperature: boo
     return (np.concatenate(fit) if fit else empty), (np.concatenate(test) if test else empty)
 
 
-def train_parity(grouped: Mapping[str, list[Recording]], settings: TrainingSettings) -> TrainingResult:
-    """Train a parity bundle from recordings grouped by health state (see the module docstring).
+def fit_parity(grouped: Mapping[str, list[Recording]],
+               settings: TrainingSettings) -> tuple[ConditionModel, bool, dict[str, Any]]:
+    """The condition model, whether it reads the temperature, and what was measured on the way (``manifest``,
+    ``scores``, ``evaluation``), from recordings grouped by health state (see the module docstring).
 
     Raises
     ------
@@ -91,20 +93,20 @@ def train_parity(grouped: Mapping[str, list[Recording]], settings: TrainingSetti
         evaluation["rule_temperature"] = model.decision_.temperature_
     n_rel = len(model.features_.relations_)
     window_scores = {s: x.reshape(x.shape[0], n_rel, len(states)) for s, x in scores.items()}
+    data = data_summary(grouped, states)
+    for s in states:  # the window counts go between the samples and the sources, as they always did
+        data[s] = {"runs": data[s]["runs"], "samples": data[s]["samples"], "fit_windows": int(fit[s].shape[0]),
+                   "test_windows": int(test[s].shape[0]), "sources": data[s]["sources"]}
     manifest = {
         "method": "parity", "reference": None, "states": states, "sensors": list(model.features_.sensors),
         "relations": list(model.features_.relations_), "window": plan.window, "hop": plan.window, "warmup": 0,
-        "temperature": temperature, "settings": settings.to_dict(),
-        "data": {s: {"runs": len(grouped[s]), "samples": int(sum(len(r) for r in grouped[s])),
-                     "fit_windows": int(fit[s].shape[0]), "test_windows": int(test[s].shape[0]),
-                     "sources": sorted({str(r.meta.get("source", "")) for r in grouped[s]})} for s in states},
+        "temperature": temperature, "settings": settings.to_dict(), "data": data,
         "metrics": {"test_accuracy": evaluation["test_accuracy"], "levels": model.features_.levels_,
                     "floors": model.features_.floors_},
     }
-    bundle = ModelBundle({}, None, manifest, model)
-    seconds = time.perf_counter() - start
-    event(_log, "trained", method="parity", accuracy=evaluation["test_accuracy"], seconds=round(seconds, 1))
-    return TrainingResult(bundle, {}, window_scores, evaluation, {}, seconds)
+    event(_log, "trained", method="parity", accuracy=evaluation["test_accuracy"],
+          seconds=round(time.perf_counter() - start, 1))
+    return model, temperature, {"manifest": manifest, "scores": window_scores, "evaluation": evaluation}
 
 
 def evaluate(model: ConditionModel, test: Mapping[str, np.ndarray]) -> dict[str, Any]:

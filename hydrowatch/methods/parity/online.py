@@ -1,0 +1,112 @@
+"""The parity method online: closed raw windows of the fleet judged by the condition model, pooled or not.
+
+The fleet driver (:class:`~hydrowatch.training.window_fleet.WindowFleet`) keeps every machine's window in
+progress in one fleet-wide array and hands the windows that close to :meth:`ParityJudge.judge` in
+batches: the evidence of each window (one :meth:`ConditionFeatures.transform_evidence` call per batch
+and model: each machine is pooled and judged by its own commissioned model when it has one), the
+verdict from the window alone (``smoothing`` 1) or pooled over the machine's last ``smoothing`` valid
+windows (one :class:`~hydrowatch.condition.stream.ConditionStream` per machine, judged in one
+:func:`~hydrowatch.condition.stream.judge_streams` call per model). A break does not flush the pooled
+evidence (as :class:`ConditionStream` skips invalid windows); the oil temperature coming or going
+(its boxes differ) starts the pool again. A chunk without the temperature, for a bundle that reads
+it, has it unknown (NaN, not a break: the leak boxes widened by the oil's range,
+:mod:`hydrowatch.condition.oil`).
+
+Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
+from hydrowatch.condition.estimates import TEMPERATURE, WIDTH
+from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.oil import temperature_known
+from hydrowatch.condition.stream import ConditionStream, judge_streams
+from hydrowatch.errors import ParameterError
+from hydrowatch.verdict import Verdict
+
+UNKNOWN_TEMPERATURE = float("nan")
+"""Oil temperature of a chunk without one when a parity bundle uses it: unknown (the window is judged with the
+leak boxes widened by the oil's range, :mod:`hydrowatch.condition.oil`)."""
+
+
+class ParityJudge:
+    """Closed raw windows of many machines → verdicts and relation scores (module docstring).
+
+    Parameters
+    ----------
+    model : ConditionModel
+        The fleet's condition model.
+    temperature : bool
+        Whether the windows carry the oil temperature (5th column; unknown, NaN, when a chunk has none).
+    window, hop : int
+        Samples per window and between window starts.
+    smoothing : int, default 1
+        Valid windows of a machine pooled in each verdict (1: each window alone).
+    unit_model : callable, optional
+        Machine (``fleet/machine``) → its commissioned :class:`ConditionModel`, or None for the fleet model
+        (:class:`hydrowatch.training.commissioning.Commissionings`). A commissioned model shares the fleet
+        model's states, but its boxes (which pooling clips to) and its open-set pooling differ: each machine is
+        pooled and judged by its own model.
+    """
+
+    def __init__(self, model: ConditionModel, temperature: bool, window: int, hop: int, *, smoothing: int = 1,
+                 unit_model: Callable[[str], ConditionModel | None] | None = None) -> None:
+        if int(smoothing) != smoothing or smoothing < 1:
+            raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
+        self.model, self.window, self.hop = model, window, hop
+        self.columns = list(WINDOW_CHANNELS)
+        self.defaults: dict[str, float] = {}
+        if temperature:
+            self.columns.append(TEMPERATURE)
+            self.defaults[TEMPERATURE] = UNKNOWN_TEMPERATURE
+        self.smoothing = int(smoothing)
+        self.unit_model = unit_model
+        self.shape = (len(model.features_.relations_), len(model.features_.states_))
+        self._pools: dict[str, ConditionStream] = {}
+
+    def _models(self, machines: Sequence[str]) -> list[ConditionModel]:
+        """Each machine's model: its commissioned one, or the fleet model."""
+        if self.unit_model is None:
+            return [self.model] * len(machines)
+        return [self.unit_model(m) or self.model for m in machines]
+
+    def judge(self, raw: np.ndarray, machines: Sequence[str]) -> list[tuple[Verdict, np.ndarray]]:
+        """Verdicts and relation scores (n_relations, n_states) of closed windows ``raw`` (m, window, n_columns)."""
+        features = self.model.features_
+        width = 2 * len(features.feature_names_)
+        models = self._models(machines)
+        known = temperature_known(raw, WIDTH) if TEMPERATURE in self.columns else np.zeros(len(raw), dtype=bool)
+        rows = np.empty((len(raw), width + 2 * len(features.states_)))
+        verdicts: list[Verdict | None] = [None] * len(raw)
+        for model in {id(m): m for m in models}.values():  # each machine by its own (commissioned) model
+            mine = np.flatnonzero([m is model for m in models])
+            rows[mine] = model.features_.transform_evidence(raw[mine])
+            reasons = model.features_.window_reasons(raw[mine])
+            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
+            for i, why in zip(mine.tolist(), reasons):
+                row, machine = rows[i], machines[i]
+                alone = (row[:width], row[:width], row[:width], 1)
+                if self.smoothing == 1:
+                    evidence.append(alone)
+                    continue
+                pool = self._pools.get(machine)
+                if pool is None or pool.model is not model or pool.temperature != bool(known[i]):
+                    # the oil temperature came or went (its boxes differ): the pool starts again
+                    pool = self._pools[machine] = ConditionStream(model, n_windows=self.smoothing,
+                                                                  temperature=bool(known[i]))
+                pool.update_features(row)
+                got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
+                evidence.append(got if got is not None else alone)
+            for i, v in zip(mine.tolist(), judge_streams(model, self.smoothing, evidence, reasons)):
+                verdicts[i] = v
+        band = rows[:, : width // 2]
+        out = []
+        for maybe, s in zip(verdicts, band):
+            assert maybe is not None
+            out.append((maybe, s.reshape(self.shape)))
+        return out
