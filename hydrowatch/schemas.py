@@ -23,7 +23,8 @@ import pyarrow as pa
 from hydrowatch.errors import DataError
 
 SCHEMA_VERSION = 1
-"""Current version of every message schema (bumped together with the contract)."""
+"""Version of ``sensor_chunk`` (the samples a recording holds) kept for readers of recording metadata; each schema
+has its own current version (:func:`current_version`): the highest one declared in ``schemas/``."""
 
 NAME_KEY = b"hydrowatch.schema"
 VERSION_KEY = b"hydrowatch.schema_version"
@@ -118,15 +119,26 @@ def _all_schemas() -> dict[tuple[str, int], pa.Schema]:
     return found
 
 
+def current_version(name: str) -> int:
+    """The version of schema ``name`` that hydrowatch writes: the highest declared (``schemas/<name>.v<N>.json``).
+
+    Older declared versions stay readable (:func:`validate`); a message of a newer one is refused.
+    """
+    versions = [v for n, v in _all_schemas() if n == name]
+    if not versions:
+        raise DataError(f"schema must be one of {sorted({n for n, _ in _all_schemas()})}. Got {name!r}.")
+    return max(versions)
+
+
 def schema_by_name(name: str, version: int | None = None) -> pa.Schema:
-    """The declared schema ``name`` at ``version`` (default: :data:`SCHEMA_VERSION`).
+    """The declared schema ``name`` at ``version`` (default: its :func:`current_version`).
 
     Raises
     ------
     DataError
         When no declaration ``schemas/<name>.v<version>.json`` exists.
     """
-    version = SCHEMA_VERSION if version is None else int(version)
+    version = current_version(name) if version is None else int(version)
     schemas = _all_schemas()
     if (name, version) not in schemas:
         known = sorted(f"{n}.v{v}" for n, v in schemas)
@@ -220,7 +232,9 @@ def validate(
 
     Every non-nullable field must be present, hold no nulls and have the declared type; nullable
     fields may be absent; no undeclared field may appear. When the batch carries hydrowatch schema
-    metadata (it must with ``require_metadata``), its name and version must be the expected ones.
+    metadata (it must with ``require_metadata``), its name must be the expected one and its version the
+    expected one or an older declared version of it (then the batch is checked against that version's
+    declaration: a reader of version N reads every version up to N).
 
     Raises
     ------
@@ -244,11 +258,14 @@ def validate(
     if got_name is not None and got_name != spec.name:
         raise SchemaMismatchError(f"message schema must be {expected!r}. Got {got_name.decode()!r}.", source)
     if got_name is not None and meta.get(VERSION_KEY) != spec.version:
-        raise SchemaVersionError(
-            f"{expected} schema version must be {spec.version.decode()}. Got {schema_version(got_schema)}. "
-            "Upgrade the reader or the writer so that both speak the same version.",
-            source,
-        )
+        got_version, wanted = schema_version(got_schema), int(spec.version.decode())
+        if got_version is None or got_version > wanted or (expected, got_version) not in _all_schemas():
+            raise SchemaVersionError(
+                f"{expected} schema version must be {wanted} or an older declared one. Got {got_version}. "
+                "Upgrade the reader so that it speaks the writer's version.",
+                source,
+            )
+        spec = _spec(_all_schemas()[(expected, got_version)])  # an older version: its own declaration
     names = got_schema.names
     got = dict(zip(names, got_schema.types))
     if not spec.names.issuperset(got):
@@ -284,6 +301,7 @@ __all__ = [
     "STATUS",
     "SchemaMismatchError",
     "SchemaVersionError",
+    "current_version",
     "describe",
     "schema_by_name",
     "schema_name",

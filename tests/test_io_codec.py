@@ -20,9 +20,9 @@ from hydrowatch.recording import UNITS
 from hydrowatch.schemas import (
     HEALTH_VERDICT,
     KL_WINDOW,
-    SCHEMA_VERSION,
     SENSOR_CHUNK,
     STATUS,
+    current_version,
     describe,
     schema_by_name,
     schemas_dir,
@@ -48,7 +48,7 @@ def test_schemas_carry_name_version_units_and_descriptions():
         (STATUS, "status"),
     ):
         assert schema.metadata[b"hydrowatch.schema"] == name.encode()
-        assert schema.metadata[b"hydrowatch.schema_version"] == str(SCHEMA_VERSION).encode()
+        assert schema.metadata[b"hydrowatch.schema_version"] == str(current_version(name)).encode()
         assert all(f.metadata[b"description"] for f in schema)
         assert schema_by_name(name) is schema
     assert units(SENSOR_CHUNK) == UNITS  # the contract's units, one source of truth
@@ -63,7 +63,9 @@ def test_schemas_carry_name_version_units_and_descriptions():
 
 def test_schema_files_are_plain_json_with_every_field_documented():
     files = sorted(p.name for p in schemas_dir().glob("*.json"))
-    assert files == ["health_verdict.v1.json", "kl_window.v1.json", "sensor_chunk.v1.json", "status.v1.json"]
+    assert files == ["health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json", "sensor_chunk.v1.json",
+                     "status.v1.json"]
+    assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status")] == [1, 1, 2, 1]
     readme = (schemas_dir() / "README.md").read_text()
     for name in files:
         spec = json.loads((schemas_dir() / name).read_text())
@@ -122,9 +124,35 @@ def test_garbage_other_schema_and_other_version_are_three_distinct_errors(chunk)
         decode_batch(foreign, SENSOR_CHUNK, "key/x")
     batch = sensor_chunk_from_arrays(*chunk)
     v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"2"})
-    with pytest.raises(SchemaVersionError, match="sensor_chunk schema version must be 1. Got 2"):
+    with pytest.raises(SchemaVersionError, match="sensor_chunk schema version must be 1 or an older declared one"):
         decode_batch(encode_batch(v2), SENSOR_CHUNK, "key/x")
     assert not issubclass(SchemaVersionError, SchemaMismatchError)
+
+
+def test_a_health_verdict_of_an_older_version_is_read_and_a_newer_one_refused():
+    from hydrowatch.report.fleet_table import verdict_rows
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.messages import verdict_batch
+    from hydrowatch.verdict import Verdict
+
+    verdict = Verdict("pump_leak_warning", 0.9, {"healthy": 0.1, "pump_leak_warning": 0.9})
+    index = {"pump_leak": {"value": 0.41, "ci95": [0.38, 0.44]}}
+    v2 = verdict_batch(WindowVerdict("m", 0.0, 5.0, verdict, None, index), "sha256:x")
+    row = verdict_rows(decode_batch(encode_batch(v2), HEALTH_VERDICT, "key/h"))[0]
+    assert row["degradation"] == index and row["state"] == "pump_leak_warning"
+    v1_schema = wire_schema(schema_by_name("health_verdict", 1))  # what a hydrowatch of before 2026-11-25 sends
+    v1 = pa.RecordBatch.from_pylist([{k: v for k, v in v2.to_pylist()[0].items() if k != "degradation"}],
+                                    schema=v1_schema)
+    old = verdict_rows(decode_batch(encode_batch(v1), HEALTH_VERDICT, "key/h"))[0]
+    assert old["degradation"] is None and old["probabilities"] == {"healthy": 0.1, "pump_leak_warning": 0.9}
+    newer = v2.replace_schema_metadata({**v2.schema.metadata, b"hydrowatch.schema_version": b"3"})
+    with pytest.raises(SchemaVersionError, match="health_verdict schema version must be 2 or an older"):
+        decode_batch(encode_batch(newer), HEALTH_VERDICT, "key/h")
+    with_field = v1.replace_schema_metadata(v1.schema.metadata)
+    extra = pa.RecordBatch.from_arrays([*with_field.columns, pa.array([1.0])],
+                                       schema=with_field.schema.append(pa.field("degradation", pa.float64())))
+    with pytest.raises(DataError, match="fields must be among"):  # v1 does not declare it
+        decode_batch(encode_batch(extra), HEALTH_VERDICT, "key/h")
 
 
 def test_malformed_payload_names_the_field(chunk):

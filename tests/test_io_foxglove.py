@@ -35,7 +35,9 @@ def _chunk(i: int, n: int = 100) -> pa.RecordBatch:
 def _verdict(start: float, state: str, p: float) -> pa.RecordBatch:
     row = {"window_start": [start], "window_end": [start + 2.0], "state": [state], "probability": [p],
            "probabilities": [[{"state": s, "probability": p if s == state else 1 - p} for s in STATES]],
-           "reason": [None], "model_version": ["sha256:abc"]}
+           "reason": [None], "model_version": ["sha256:abc"],
+           "degradation": [None if state == "healthy" else [{"fault": "load", "index": 0.5, "low": 0.45,
+                                                              "high": 0.55}]]}
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(HEALTH_VERDICT))
 
 

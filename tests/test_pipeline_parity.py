@@ -81,6 +81,12 @@ def test_parity_stream_equals_batch_and_breaks_are_invalid(parity: dict) -> None
     for a, b in zip(got, offline):
         assert a.start_s == pytest.approx(b["start_s"]) and a.verdict.probabilities == pytest.approx(b["probabilities"])
         assert a.scores is not None and a.scores.shape == (3, len(STATES))
+        # the degradation index online is score's, window by window (published in health_verdict v2)
+        assert a.degradation is not None and set(a.degradation) == set(b["degradation"]) >= {"load", "pump_leak"}
+        for fault, d in a.degradation.items():
+            assert d["value"] == pytest.approx(b["degradation"][fault]["value"], abs=1e-4), fault
+            assert d["ci95"] == pytest.approx(b["degradation"][fault]["ci95"], abs=1e-4), fault
+    assert got[-1].degradation["load"]["value"] > 0.8  # a load alert: at the alert level (1)
     gap = scorer.update([Chunk("m", r.t[4100:4200], {c: r[c][4100:4200] for c in COLUMNS})])
     assert [v.verdict.state for v in gap] == [] and scorer.update([]) == []
     speed = r["speed"][4200:4300].copy()

@@ -31,6 +31,7 @@ motor_leak have their own relations and are always estimated.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -234,3 +235,33 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
         return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
     blocks = (features.window - 1) // parity.BLOCK
     return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool)
+
+
+class DegradationStream:
+    """One machine's degradation index online (river style): :meth:`update` with each valid window's free fits
+    returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows (the
+    valve-side part is chosen over the last ``pool`` valid windows, kept here: ``pool`` × 20 floats).
+
+    Parameters
+    ----------
+    features : ConditionFeatures
+        Fitted (or commissioned): the unit's nominal parameters, window and relations.
+    pool : int, default :data:`ATTRIBUTION_WINDOWS`
+    """
+
+    def __init__(self, features: ConditionFeatures, pool: int = ATTRIBUTION_WINDOWS) -> None:
+        self.features, self.pool = features, pool
+        self._fits: deque[tuple[dict[str, float], dict[str, float], dict[str, float]]] = deque(maxlen=pool)
+
+    def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
+               curvature: Mapping[str, float]) -> dict[str, dict[str, float | list[float]]]:
+        """The index of a valid window from its free fits (one window's values of
+        :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95"}}``, finite only."""
+        self._fits.append((dict(severity), dict(mse), dict(curvature)))
+        stacked = [{k: np.array([fit[j][k] for fit in self._fits]) for k in self._fits[0][j]} for j in range(3)]
+        n = len(self._fits)
+        blocks = (self.features.window - 1) // parity.BLOCK
+        found = window_degradation(ParityEstimates(*stacked), np.ones(n, dtype=bool), self.features.nominal_, blocks,
+                                   self.features.relations_, self.pool)
+        return found.window(n - 1)
+

@@ -72,7 +72,8 @@ def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str
         others are still allowed.
     """
     declared = schema_by_name(KINDS[kind])
-    replaced = {"sensors": set(), "health": {"probabilities"}, "kl": {"sensor", "state", "relative_entropy"}}[kind]
+    replaced = {"sensors": set(), "health": {"probabilities", "degradation"},
+                "kl": {"sensor", "state", "relative_entropy"}}[kind]
     properties = {f.name: _property(f) for f in declared if f.name not in replaced}
     required = [f.name for f in declared if not f.nullable and f.name not in replaced]
     title, description = f"hydrowatch.{KINDS[kind]}", declared.metadata[b"hydrowatch.description"].decode()
@@ -85,6 +86,11 @@ def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str
             "type": "object", "description": "Probability of every trained state, 0 to 1.",
             "properties": {s: number for s in example.get("probabilities", {})}, "additionalProperties": number}
         required.append("probabilities")
+        part = {"type": "object", "properties": {k: number for k in ("index", "low", "high")}}
+        properties["degradation"] = {
+            "type": "object", "description": "Degradation index of each part (0 healthy, 1 at the alert level) with "
+                                             "its 95 % interval [1]; absent when the window has none.",
+            "additionalProperties": part}
     else:
         per_state = {"type": "object", "additionalProperties": number}
         rows = example.get("relative_entropy", {})
@@ -120,11 +126,15 @@ def sensor_samples(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dic
 
 
 def verdicts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str, Any]]]:
-    """``(log_time_ns, verdict)`` per row of a health verdict; ``probabilities`` as {state: p}."""
+    """``(log_time_ns, verdict)`` per row of a health verdict; ``probabilities`` as {state: p}, ``degradation`` (v2,
+    when the window has one) as {fault: {index, low, high}}."""
     for row in batch.to_pylist():
-        verdict = {k: v for k, v in row.items() if k != "probabilities" and _finite(v)}
+        verdict = {k: v for k, v in row.items() if k not in ("probabilities", "degradation") and _finite(v)}
         verdict["probabilities"] = {p["state"]: p["probability"] for p in row["probabilities"] or []
                                     if _finite(p["probability"])}
+        if row.get("degradation"):  # health_verdict v2: {fault: {index, low, high}}, plottable per part
+            verdict["degradation"] = {d["fault"]: {k: d[k] for k in ("index", "low", "high") if _finite(d[k])}
+                                      for d in row["degradation"]}
         yield _ns(row["window_end"], where, "window_end"), verdict
 
 

@@ -99,6 +99,10 @@ class OfflineScores:
     degradation: Any = None
 
 
+Judged = tuple[Verdict, np.ndarray] | tuple[Verdict, np.ndarray, dict[str, Any] | None]
+"""What a :class:`WindowJudge` gives per window: verdict, ``kl`` scores and, optionally, the degradation index."""
+
+
 @runtime_checkable
 class WindowJudge(Protocol):
     """Streaming part of a method that reads raw windows: the driver cuts them, this judges them.
@@ -112,9 +116,10 @@ class WindowJudge(Protocol):
     window: int
     hop: int
 
-    def judge(self, raw: np.ndarray, machines: Sequence[str]) -> list[tuple[Verdict, np.ndarray]]:
+    def judge(self, raw: np.ndarray, machines: Sequence[str]) -> Sequence[Judged]:
         """Verdicts and ``kl`` scores (n_rows, n_states) of closed windows ``raw`` (m, window, n_columns) of
-        ``machines`` (m, in closing order; a method that pools keeps each machine's recent evidence)."""
+        ``machines`` (m, in closing order; a method that pools keeps each machine's recent evidence); a method with a
+        degradation index adds it as a third item (``{fault: {"value", "ci95"}}`` or None)."""
         ...
 
 

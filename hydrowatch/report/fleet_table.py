@@ -114,8 +114,12 @@ class FleetTable:
 
 
 def verdict_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
-    """``health_verdict`` rows as dicts (``probabilities`` as state → p)."""
+    """``health_verdict`` rows (v1 or v2) as dicts: ``probabilities`` as state → p, ``degradation`` (None when absent)
+    as fault → ``{"value", "ci95": [lo, hi]}`` as ``score --json`` writes it."""
     rows = batch.to_pylist()
     for row in rows:
         row["probabilities"] = {p["state"]: p["probability"] for p in row.get("probabilities") or []}
+        parts = row.get("degradation")
+        row["degradation"] = None if parts is None else {
+            d["fault"]: {"value": d["index"], "ci95": [d["low"], d["high"]]} for d in parts}
     return rows

@@ -148,6 +148,9 @@ class WindowVerdict:
     scores : ndarray, shape (n_rows, n_states), or None
         The window's ``kl`` scores (None for a window cut short by a break): relative entropies
         per sensor, nats (entropy method), or relation scores per relation (parity method).
+    degradation : dict or None
+        Degradation index per part, ``{fault: {"value", "ci95": [lo, hi]}}`` (parity method, valid
+        windows; :meth:`hydrowatch.condition.degradation.Degradation.window`), None otherwise.
     """
 
     machine: str
@@ -155,6 +158,7 @@ class WindowVerdict:
     end_s: float
     verdict: Verdict
     scores: np.ndarray | None = None
+    degradation: dict[str, dict[str, Any]] | None = None
 
 
 @dataclass

@@ -15,7 +15,8 @@ OPEN_SET_REASON = "no trained state explains the window (open-set rule)"
 
 
 def verdict_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch:
-    """One ``health_verdict`` row; ``probability`` is 0 for ``invalid`` and ``unknown``."""
+    """One ``health_verdict`` (v2) row; ``probability`` is 0 for ``invalid`` and ``unknown``; ``degradation`` null when
+    the window has none."""
     v = item.verdict
     reason = v.reason if v.reason is not None else (OPEN_SET_REASON if v.state == UNKNOWN else None)
     row = {
@@ -23,6 +24,9 @@ def verdict_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch:
         "probability": [float(v.probability) if v.probability is not None else 0.0],
         "probabilities": [[{"state": s, "probability": float(p)} for s, p in v.probabilities.items()]],
         "reason": [reason], "model_version": [model_version],
+        "degradation": [None if item.degradation is None else [
+            {"fault": f, "index": float(d["value"]), "low": float(d["ci95"][0]), "high": float(d["ci95"][1])}
+            for f, d in item.degradation.items()]],
     }
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(HEALTH_VERDICT))
 

@@ -283,7 +283,7 @@ class WindowFleet:
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
             judged = self.judge.judge(np.stack([c.samples for c in part]), [self._names[c.slot] for c in part])
-            for c, (v, s) in zip(part, judged):
+            for c, item in zip(part, judged):  # a judge may add each window's degradation index
                 out.append(WindowVerdict(self._names[c.slot], c.t0 + c.start * DT, c.t0 + (c.start + self.window) * DT,
-                                         v, s))
+                                         item[0], item[1], item[2] if len(item) > 2 else None))
         return out

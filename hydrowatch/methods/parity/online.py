@@ -18,11 +18,13 @@ Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition.degradation import DegradationStream
 from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
-from hydrowatch.condition.estimates import TEMPERATURE, WIDTH
+from hydrowatch.condition.estimates import TEMPERATURE, WIDTH, ParityEstimates
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.stream import ConditionStream, judge_streams
@@ -68,6 +70,7 @@ class ParityJudge:
         self.unit_model = unit_model
         self.shape = (len(model.features_.relations_), len(model.features_.states_))
         self._pools: dict[str, ConditionStream] = {}
+        self._indices: dict[str, DegradationStream] = {}
 
     def _models(self, machines: Sequence[str]) -> list[ConditionModel]:
         """Each machine's model: its commissioned one, or the fleet model."""
@@ -75,17 +78,25 @@ class ParityJudge:
             return [self.model] * len(machines)
         return [self.unit_model(m) or self.model for m in machines]
 
-    def judge(self, raw: np.ndarray, machines: Sequence[str]) -> list[tuple[Verdict, np.ndarray]]:
-        """Verdicts and relation scores (n_relations, n_states) of closed windows ``raw`` (m, window, n_columns)."""
+    def judge(self, raw: np.ndarray, machines: Sequence[str]
+              ) -> list[tuple[Verdict, np.ndarray, dict[str, Any] | None]]:
+        """Verdicts, relation scores (n_relations, n_states) and degradation indices (None where invalid;
+        :class:`~hydrowatch.condition.degradation.DegradationStream`) of closed windows ``raw`` (m, window,
+        n_columns)."""
         features = self.model.features_
         width = 2 * len(features.feature_names_)
         models = self._models(machines)
         known = temperature_known(raw, WIDTH) if TEMPERATURE in self.columns else np.zeros(len(raw), dtype=bool)
         rows = np.empty((len(raw), width + 2 * len(features.states_)))
         verdicts: list[Verdict | None] = [None] * len(raw)
+        indices: list[dict[str, Any] | None] = [None] * len(raw)
         for model in {id(m): m for m in models}.values():  # each machine by its own (commissioned) model
             mine = np.flatnonzero([m is model for m in models])
-            rows[mine] = model.features_.transform_evidence(raw[mine])
+            found, valid, estimates = model.features_.evidence_and_estimates(raw[mine])
+            rows[mine] = found
+            for i, index in zip(mine.tolist(), self._degradation(model, [machines[i] for i in mine.tolist()], valid,
+                                                                  estimates)):
+                indices[i] = index
             reasons = model.features_.window_reasons(raw[mine])
             evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
             for i, why in zip(mine.tolist(), reasons):
@@ -105,8 +116,24 @@ class ParityJudge:
             for i, v in zip(mine.tolist(), judge_streams(model, self.smoothing, evidence, reasons)):
                 verdicts[i] = v
         band = rows[:, : width // 2]
-        out = []
-        for maybe, s in zip(verdicts, band):
+        out: list[tuple[Verdict, np.ndarray, dict[str, Any] | None]] = []
+        for maybe, s, index in zip(verdicts, band, indices):
             assert maybe is not None
-            out.append((maybe, s.reshape(self.shape)))
+            out.append((maybe, s.reshape(self.shape), index))
+        return out
+
+    def _degradation(self, model: ConditionModel, machines: Sequence[str], valid: np.ndarray,
+                     estimates: ParityEstimates | None) -> list[dict[str, Any] | None]:
+        """Each window's degradation index (None where invalid), from its machine's :class:`DegradationStream`
+        (started again when the machine's model changes, as ``score`` starts with a recording)."""
+        out: list[dict[str, Any] | None] = [None] * len(machines)
+        if estimates is None:
+            return out
+        for k, i in enumerate(np.flatnonzero(valid).tolist()):
+            machine = machines[i]
+            stream = self._indices.get(machine)
+            if stream is None or stream.features is not model.features_:
+                stream = self._indices[machine] = DegradationStream(model.features_)
+            out[i] = stream.update(*({f: float(v[k]) for f, v in part.items()}
+                                     for part in (estimates.severity, estimates.mse, estimates.curvature)))
         return out
