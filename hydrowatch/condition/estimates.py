@@ -32,7 +32,8 @@ CHANNELS: tuple[str, ...] = (INPUT, *SENSORS)
 WIDTH = len(CHANNELS)
 """Channels of a window without the oil temperature (4); with it, the temperature is column WIDTH."""
 TEMPERATURE = "temperature"
-"""Optional 5th channel of a window: oil temperature, °C (40 °C assumed when absent)."""
+"""Optional 5th channel of a window: oil temperature, °C (absent or all NaN: unknown, the leak boxes allow for the
+oil's range, :mod:`hydrowatch.condition.oil`)."""
 LPM_TO_M3S = 1.0 / M3S_TO_LPM
 REFIT_GRID = 19
 """Coarse-grid points of the second valve search for fits that end on a search limit (:func:`parity_estimates`)."""

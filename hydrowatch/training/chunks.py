@@ -38,7 +38,7 @@ class Chunk:
         Sample times, s.
     channels : mapping of str to ndarray, shape (n,)
         At least ``voltage`` [V] and the bundle's sensors (and ``temperature`` [°C] when a parity
-        bundle uses it; 40 °C is assumed when missing).
+        bundle uses it; unknown, NaN, when missing: condition/oil.py).
     """
 
     machine: str
