@@ -173,7 +173,8 @@ class Degradation:
 
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
-                       relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS) -> Degradation:
+                       relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
+                       blamed: np.ndarray | None = None) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -190,19 +191,22 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         Relations the sensors test (``ConditionFeatures.relations_``).
     pool : int, default :data:`ATTRIBUTION_WINDOWS`
         Valid windows deciding the valve-side part (:func:`attributed_valve_fault`).
+    blamed : ndarray of int, shape (n,), optional
+        The valve-side part of each window when the caller has chosen it (:class:`DegradationStream`).
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
     measured = {f: np.zeros(n, dtype=bool) for f in FAULTS}
     mse = {f: estimates.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
-    blamed = (attributed_valve_fault({f: _spread(mse[f], valid) for f in parity.VALVE_HYPOTHESES}, valid, pool)
-              if "valve" in relations and valid.any() else np.full(n, -1))
+    if blamed is None:
+        blamed = (attributed_valve_fault({f: _spread(mse[f], valid) for f in parity.VALVE_HYPOTHESES}, valid, pool)
+                  if "valve" in relations and valid.any() else np.full(n, -1))
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
         s = estimates.severity[fault]
         se = severity_standard_error(mse[fault], estimates.curvature[fault], blocks)
-        v, lo, hi = (degradation_index(fault, x, nominal) for x in (s, s - Z95 * se, s + Z95 * se))
+        v, lo, hi = degradation_index(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal)  # one table look-up
         lo, hi = widened(v, lo, hi)
         if fault in parity.VALVE_HYPOTHESES:
             mine = blamed[valid] == parity.VALVE_HYPOTHESES.index(fault)
@@ -239,8 +243,9 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
 
 class DegradationStream:
     """One machine's degradation index online (river style): :meth:`update` with each valid window's free fits
-    returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows (the
-    valve-side part is chosen over the last ``pool`` valid windows, kept here: ``pool`` × 20 floats).
+    returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows: the
+    valve-side part is the hypothesis with the smallest Σ log MSE over the last ``pool`` valid windows (a running
+    sum over a ring of ``pool`` × 4 floats), the rest is the window's own.
 
     Parameters
     ----------
@@ -251,17 +256,23 @@ class DegradationStream:
 
     def __init__(self, features: ConditionFeatures, pool: int = ATTRIBUTION_WINDOWS) -> None:
         self.features, self.pool = features, pool
-        self._fits: deque[tuple[dict[str, float], dict[str, float], dict[str, float]]] = deque(maxlen=pool)
+        self._logs: deque[np.ndarray] = deque(maxlen=pool)
+        self._sum = np.zeros(len(parity.VALVE_HYPOTHESES))
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
                curvature: Mapping[str, float]) -> dict[str, dict[str, float | list[float]]]:
         """The index of a valid window from its free fits (one window's values of
         :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95"}}``, finite only."""
-        self._fits.append((dict(severity), dict(mse), dict(curvature)))
-        stacked = [{k: np.array([fit[j][k] for fit in self._fits]) for k in self._fits[0][j]} for j in range(3)]
-        n = len(self._fits)
-        blocks = (self.features.window - 1) // parity.BLOCK
-        found = window_degradation(ParityEstimates(*stacked), np.ones(n, dtype=bool), self.features.nominal_, blocks,
-                                   self.features.relations_, self.pool)
-        return found.window(n - 1)
-
+        f = self.features
+        blamed = np.array([-1])
+        if "valve" in f.relations_:
+            logs = np.log(np.maximum([mse[h] for h in parity.VALVE_HYPOTHESES], 1e-300))
+            if len(self._logs) == self._logs.maxlen:
+                self._sum -= self._logs[0]
+            self._logs.append(logs)
+            self._sum += logs
+            blamed = np.array([int(np.argmin(self._sum))])
+        one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
+        found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
+                                   f.relations_, self.pool, blamed)
+        return found.window(0)
