@@ -63,11 +63,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shard", type=parse_shard, default=Shard(), help="score only shard i/n of the machines")
     parser.add_argument("--tick", type=float, default=0.05, help="seconds of chunks gathered per batch (default 0.05)")
     parser.add_argument("--smoothing", type=int, default=None, metavar="N",
-                        help="parity bundles: each verdict pools the machine's last N valid windows (default 12: "
-                             "what spread severities and the open set need on working commands; 1: each window "
-                             "alone; a new state is named after ~N/2 windows). Entropy bundles: 1 only")
+                        help="methods that pool (parity): each verdict pools the machine's last N valid windows "
+                             "(default 12: what spread severities and the open set need on working commands; 1: each "
+                             "window alone; a new state is named after ~N/2 windows). Other methods: 1 only")
     parser.add_argument("--stagger", action=argparse.BooleanOptionalAction, default=True,
-                        help="parity bundles: start each machine's windows at a phase of its own (from its name), so a "
+                        help="raw-window methods (parity, stats): start each machine's windows at a phase of its own "
+                             "(from its name), so a "
                              "fleet started together, or every machine after a restart or a model switch, does not "
                              "close every window at once (default on; costs up to one window of samples after each "
                              "(re)start; --no-stagger: windows from each machine's first sample)")
