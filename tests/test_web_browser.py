@@ -117,6 +117,8 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         browser.evaluate("document.querySelector('#rows a[href*=\"m001\"]').click()")
         browser.wait_for("location.pathname === '/machine' && window.hw && window.hw.updates > 0", timeout=20)
         assert browser.evaluate("document.querySelector('#verdict .badge').textContent") == "load_alert"
+        # the scorer's degradation index (health_verdict v2) is shown beside the verdict
+        assert browser.wait_for("document.querySelector('#verdict').textContent.includes('degradation')", timeout=10)
         assert browser.evaluate("document.querySelectorAll('#states rect').length") > 0
         assert browser.wait_for("document.querySelectorAll('#evidence table.heat td').length", timeout=10) > 0
         # its sensors are followed while the page is open: measured samples arrive on the page
