@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hydrowatch.gap import CALIBRATED, GapAnalyser
-from hydrowatch.gap.align import align
+from hydrowatch.gap.align import align, simulate_sensors, simulation_threads
 from hydrowatch.gap.discovery import FALSE_ALARM, residual_test
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
@@ -86,3 +86,15 @@ def test_the_discovery_test_passes_white_noise_and_fails_an_unexplained_error() 
                                         aligned.holdout_mask, "test"), truth, 10)
     assert found.beyond == ("speed",)
     assert found.as_dict()["false_alarm"] == FALSE_ALARM
+
+
+def test_batched_simulations_shared_out_over_threads_give_the_same_sensors(monkeypatch: pytest.MonkeyPatch) -> None:
+    rec, unit = unit_recording(6, None, seconds=10.0)
+    aligned = align(rec)
+    models = [unit, PlantParameters(), unit.replace(JL=unit.JL * 1.2)]
+    effects = [None, {"gear_backlash": {"b": 0.02}}, {"transport_delay": {"tau": 0.01}}]
+    monkeypatch.setenv("HYDROWATCH_THREADS", "1")
+    one = simulate_sensors(aligned, models, effects)
+    monkeypatch.setenv("HYDROWATCH_THREADS", "2")
+    assert simulation_threads() == 2
+    np.testing.assert_array_equal(simulate_sensors(aligned, models, effects), one)

@@ -316,7 +316,8 @@ def _value(space: ModelSpace, i: int, coordinate: float) -> tuple[str, float]:
 
 def calibrate(aligned: AlignedRecording, nominal: PlantParameters, *, free: tuple[str, ...] = CALIBRATED,
               effects: Mapping[str, Mapping[str, float]] | None = None, max_nfev: int = 15,
-              prior: bool = True, effect_free: tuple[tuple[str, str], ...] = ()) -> OutputErrorFit:
+              prior: bool = True, effect_free: tuple[tuple[str, str], ...] = (),
+              pump: float | None = None) -> OutputErrorFit:
     """Refit the nominal model's plant parameters (no effect blamed yet), in two stages.
 
     Stage 1 fits the STATIC parameters among ``free`` to errors low-passed at SLOW_BAND_HZ (the
@@ -327,21 +328,28 @@ def calibrate(aligned: AlignedRecording, nominal: PlantParameters, *, free: tupl
     the recording does not determine; the returned fit's covariance then says which it determines
     (identify.py). ``effect_free``: effect parameters estimated with the plant in stage 2 (the
     calibration under the hypothesis that those effects are present; stage 1 holds them at their
-    values in ``effects``). See :func:`fit_output_error`.
+    values in ``effects``). ``pump``: the pump displacement Dp to start from, m³/rad, when an earlier
+    calibration of the same recording found it (the calibration under a hypothesis, diagnose.py):
+    it replaces the PUMP_SCAN scan and the PUMP_RESTART restart, which only put a fit on the side
+    of Dp where the pump limits (issue 12, item 5: the restart doubled a hypothesis's cost). See
+    :func:`fit_output_error`.
     """
     fixed = {k: dict(v) for k, v in (effects or {}).items()}
     design = nominal if prior else None
     # Stage 1 leaves out the second of two parameters that act alike (Cvl beside Cp: both leak supply → tank).
     slow = tuple(n for n in free if n in STATIC and not (n == "Cvl" and "Cp" in free))
-    start, prediction = _pump_start(aligned, nominal, fixed) if "Dp" in free else (
-        nominal, simulate_sensors(aligned, [nominal], [fixed])[0])
+    if "Dp" in free and pump is None:
+        start, prediction = _pump_start(aligned, nominal, fixed)
+    else:
+        start = nominal if pump is None else nominal.replace(Dp=pump)
+        prediction = simulate_sensors(aligned, [start], [fixed])[0]
     if slow:
         stage1 = fit_output_error(aligned, ModelSpace(start, fixed, slow), max_nfev=max_nfev, band_hz=SLOW_BAND_HZ)
         start, prediction = stage1.parameters, stage1.prediction
     weight = prior_weight(aligned, prediction) if prior else 0.0
     fit = fit_output_error(aligned, ModelSpace(start, fixed, free, effect_free, design, weight), max_nfev=2 * max_nfev)
     k = fit.space.names.index("Dp") if "Dp" in free else -1
-    if k < 0 or math.sqrt(fit.covariance[k, k]) < PRIOR_SD / 2:
+    if k < 0 or pump is not None or math.sqrt(fit.covariance[k, k]) < PRIOR_SD / 2:
         return fit
     # The model's pump never limits (Dp not determined at the fit): it may sit on the flat side of a
     # unit whose pump does. Start again with a pump that limits, keep the better fit.
