@@ -215,6 +215,8 @@ def main() -> None:
                     help="parity models to evaluate (none: only --entropy)")
     ap.add_argument("--commission", action="store_true", help="also the commissioning section")
     ap.add_argument("--commission-only", action="store_true", help="only the commissioning section")
+    ap.add_argument("--stats", type=int, default=0, metavar="N",
+                    help="also the stats baseline (train --method stats) on the first N units, per window")
     ap.add_argument("--entropy", type=int, default=0, metavar="N",
                     help="also the study's method (NARX and BJ bundles, 7 states) on the first N units")
     ap.add_argument("--json", default=None, help="write the figures here")
@@ -251,6 +253,8 @@ def main() -> None:
             figures.update(commissioning(first, units, sets, args))
         if args.entropy:
             figures.update(study_method(units[: args.entropy], args))
+        if args.stats:
+            figures.update(study_method(units[: args.stats], args, "stats"))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(figures, f, indent=1)
@@ -294,17 +298,22 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
     return out
 
 
-def study_method(units: list[tuple[PlantParameters, PlantParameters]], args: argparse.Namespace) -> dict[str, object]:
-    """The study's method (``train --method entropy``, NARX and BJ references, defaults) per unit, per window."""
+def study_method(units: list[tuple[PlantParameters, PlantParameters]], args: argparse.Namespace,
+                 method: str = "entropy") -> dict[str, object]:
+    """A bundle method through ``train``/``score`` (defaults) per unit, per window: the study's method
+    (``entropy``: NARX and BJ references, trained on its plan's seconds) or the ``stats`` baseline (trained on
+    ``--train-seconds`` per state, as the parity models)."""
     from hydrowatch.plant.fleet import simulate_states
     from hydrowatch.training.options import TrainingSettings
     from hydrowatch.training.scoring import score_recording
     from hydrowatch.training.trainer import train as train_bundle
 
     out: dict[str, object] = {}
-    for reference in ("narx", "bj"):
-        settings = TrainingSettings(method="entropy", reference=reference)
-        seconds = settings.plan.samples_per_state / 200.0 + 1.0
+    for reference in ("narx", "bj") if method == "entropy" else ("none",):
+        settings = TrainingSettings(method=method, reference=reference) if method == "entropy" else \
+            TrainingSettings(method=method)
+        seconds = (settings.plan.samples_per_state / 200.0 + 1.0 if method == "entropy"
+                   else args.train_seconds)
         acc: dict[str, list[float]] = defaultdict(list)
         for j, (unit, day) in enumerate(units):
             seed = 70_000 + 1000 * j + args.seed
@@ -318,13 +327,14 @@ def study_method(units: list[tuple[PlantParameters, PlantParameters]], args: arg
                 recs = simulate_states(STUDY_STATES, seconds=u.size / 200.0, nominal=day, seed=seed + 9, command=u)
                 scored = [score_recording(bundle, r)["summary"]["accuracy"] for r in recs]
                 acc[condition].append(100.0 * float(np.mean([a for a in scored if a is not None])))
-            print(f"study's method ({reference}): unit {j + 1}/{len(units)} done", flush=True)
-        print(f"\n## study's method, {reference.upper()} reference, 7 states, per window: {len(units)} units, "
-              "% right, median / worst unit")
+            print(f"{method} ({reference}): unit {j + 1}/{len(units)} done", flush=True)
+        name = f"study's method, {reference.upper()} reference" if method == "entropy" else f"{method} method"
+        print(f"\n## {name}, 7 states, per window: {len(units)} units, % right, median / worst unit")
         for condition, values in acc.items():
             v = np.array(values)
             print(f"| {condition} | {np.median(v):.1f} / {v.min():.1f} |")
-            out[f"study {reference}|{condition}"] = {"median": float(np.median(v)), "worst": float(v.min())}
+            label = f"study {reference}" if method == "entropy" else method
+            out[f"{label}|{condition}"] = {"median": float(np.median(v)), "worst": float(v.min())}
     return out
 
 
