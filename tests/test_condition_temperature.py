@@ -56,6 +56,8 @@ def test_a_missing_temperature_reading_makes_the_window_invalid(model_and_warm):
     w = warm["healthy"][:2].copy()
     w[0, 5:9, 4] = np.nan
     assert [v.state for v in model.judge(w)] == ["invalid", "healthy"]
+    w[0, :, 4] = np.inf  # a broken reading, not an unknown temperature (all NaN): invalid
+    assert [v.state for v in model.judge(w)] == ["invalid", "healthy"]
 
 
 def test_without_the_channel_the_boxes_allow_for_the_oil_range(model_and_warm):

@@ -19,6 +19,7 @@ import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
+from hydrowatch.condition.oil import temperature_known
 from hydrowatch.errors import DataError
 from hydrowatch.health.windows import check_window, sliding_windows
 from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
@@ -285,12 +286,14 @@ def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | N
     used = [0] + [1 + SENSORS.index(s) for s in sensors] + ([WIDTH] if windows.shape[2] > WIDTH else [])
     names = (*CHANNELS, TEMPERATURE)
     bad = (~np.isfinite(windows[:, :, used])).sum(axis=1)  # (m, used)
+    if windows.shape[2] > WIDTH:  # a temperature all NaN is unknown oil (condition/oil.py), not a gap
+        bad[~temperature_known(windows, WIDTH), -1] = 0
     stuck = np.ptp(np.nan_to_num(windows[:, :, used]), axis=1) == 0.0
     reasons: list[str | None] = []
     for i in range(windows.shape[0]):
         why = None
         for j, c in enumerate(used):
-            if bad[i, j] and not (c == WIDTH and bad[i, j] == windows.shape[1]):  # all NaN: temperature unknown
+            if bad[i, j]:
                 why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
                 break
             if 0 < c < WIDTH and stuck[i, j]:
