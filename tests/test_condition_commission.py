@@ -16,7 +16,8 @@ import hydrowatch.condition.commission as C
 from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
-from hydrowatch.condition.unit import identify_unit
+from hydrowatch.condition.unit import drawn_flow, identify_unit, valve_error
+from hydrowatch.errors import DataError
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -97,13 +98,78 @@ def test_a_supply_that_fails_the_self_check_gives_way_to_the_whole_recordings_fi
     f = models[0].features_
     truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
     wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
-    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: (wrong, "kept from the trained unit", 0.5))
+    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, C.KEPT, 0.5))
     done = commission(models[0], healthy)
     assert done.supply == C.WHOLE_FIT and done.healthy_share >= 0.9
     assert done.unit.parameters.Pc == pytest.approx(truth.parameters.Pc, rel=0.05)  # the wrong one read 8 % healthy
     monkeypatch.setattr(C, "identify_unit", lambda *a, **k: wrong)
     with pytest.raises(CommissioningError, match="record 5 minutes of filtered noise"):
         commission(models[0], healthy)
+
+
+def test_the_held_out_error_prefers_the_units_own_parameters(units) -> None:
+    """valve_error: a fit predicts windows it was not fitted to; the unit's truth beats the trained unit's supply."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, filtered_noise(150, (0, 4), seed=43), 43)["healthy"]
+    truth, other = valve_error(healthy, unit), valve_error(healthy, units[0][0])
+    assert truth < 0.2 * other, (truth, other)  # measured: 0.00023 against 0.57 (L/min)²
+    with pytest.raises(DataError, match="Missing: torque"):
+        valve_error(healthy, unit, sensors=("flow", "speed"))
+
+
+def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half_better(units, models,
+                                                                                   monkeypatch) -> None:
+    """Filtered noise over the command range determines the supply: with the split test forced to fail, the held-out
+    error still chooses the whole fit; with an unreachable ratio, the trained unit's supply is kept."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
+    f = models[0].features_
+    monkeypatch.setattr(C, "SPLIT_AGREEMENT", -1.0)
+    choice = C.identify_for_commissioning(f, healthy)
+    # measured: held-out ratio 11.4 (split 0.002)
+    assert choice.supply == "identified" and choice.held_out is not None and choice.held_out > C.HELD_OUT_RATIO
+    monkeypatch.setattr(C, "HELD_OUT_RATIO", np.inf)
+    assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
+
+
+def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(units, models, monkeypatch) -> None:
+    """The held-out error chose the whole fit but it reads the unit's own healthy windows as a fault: the trained
+    unit's supply takes over when that reads them healthy."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    f = models[0].features_
+    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
+    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, "identified", 0.5, 3.0))
+    done = commission(models[0], healthy)
+    assert done.supply == C.KEPT and done.healthy_share >= 0.9 and done.held_out == 3.0
+    assert done.summary()["held_out_ratio"] == 3.0
+
+
+def test_the_pump_draw_bounds_the_capacity_and_caps_a_pump_left_to_its_prior(units, models) -> None:
+    """drawn_flow never exceeds the pump's capacity Dp·ωp; a fit that left Dp to its prior (the trained unit's pump)
+    is given at most (1 + CAPACITY_MARGIN) × the draw, one that informed Dp is left alone."""
+    unit, _ = units[1]
+    capacity = unit.Dp * unit.omega_p
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    drawn = drawn_flow(healthy, unit)
+    assert 0.7 * capacity < drawn <= capacity, drawn / capacity  # measured: 0.86 on this duty cycle
+    f = models[0].features_
+    fit = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    names, cov = fit.covariance["valve"]
+    i = names.index("Dp")
+    big = fit.parameters.replace(Dp=1.3 * unit.Dp * unit.omega_p / fit.parameters.omega_p)
+    uninformed = cov.copy()
+    uninformed[i, i] = C.DEFAULT_PRIOR**2  # the posterior of the prior alone
+    left = dataclasses.replace(fit, parameters=big, covariance={**fit.covariance, "valve": (names, uninformed)})
+    capped = C.pump_capacity(f, left, healthy)
+    expected = (1 + C.CAPACITY_MARGIN) * drawn_flow(healthy, big)
+    assert capped.parameters.Dp * capped.parameters.omega_p == pytest.approx(expected, rel=1e-9)
+    assert capped.factors["Dp"] == pytest.approx(capped.parameters.Dp / f.nominal_.Dp)
+    informed = cov.copy()
+    informed[i, i] = (0.1 * C.DEFAULT_PRIOR) ** 2
+    kept = dataclasses.replace(left, covariance={**fit.covariance, "valve": (names, informed)})
+    assert C.pump_capacity(f, kept, healthy) is kept
 
 
 @pytest.mark.parametrize("case, says", [

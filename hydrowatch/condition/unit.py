@@ -183,6 +183,12 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     return residual
 
 
+def _signals(w: np.ndarray, viscosity_coefficient: float) -> _Signals:
+    """SI signals of valid raw windows (m, n, 4 or 5), the leakage factor from the oil temperature when present."""
+    leak = parity.leakage_factor(w[:, :, 4] if w.shape[2] > 4 else None, w.shape[0], viscosity_coefficient)
+    return _Signals(w[:, :, 0], w[:, :, 1] * LPM_TO_M3S, w[:, :, 2], w[:, :, 3], leak)
+
+
 HOLD_SETTLE = 50
 """Samples (0.25 s) a command must have been held before a sample counts as held (:func:`held_noise`): the shaft's
 hydraulic resonance (~28 Hz) has rung out by then."""
@@ -298,15 +304,13 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
     if ok.sum() < 2:
         raise DataError(f"identifying a unit needs at least 2 valid healthy windows. Got {int(ok.sum())}.")
-    w = w[ok]
-    leak = parity.leakage_factor(w[:, :, 4] if w.shape[2] > 4 else None, w.shape[0], viscosity_coefficient)
-    s = _Signals(w[:, :, 0], w[:, :, 1] * LPM_TO_M3S, w[:, :, 2], w[:, :, 3], leak)
+    s = _signals(w[ok], viscosity_coefficient)
     have = set(sensors)
-    fit = UnitFit(p, windows=int(w.shape[0]))
+    fit = UnitFit(p, windows=int(s.flow.shape[0]))
     plan: list[tuple[str, set[str], Callable[[_Signals], Relation], _Signals]] = [
         ("load", {"speed", "torque"}, lambda x: (_load_residual(x), None), s),
         ("motor", {"flow", "speed", "torque"}, lambda x: (_motor_residual(x), None), s)]
-    pick = np.unique(np.linspace(0, w.shape[0] - 1, min(MAX_WINDOWS, w.shape[0])).round().astype(int))
+    pick = np.unique(np.linspace(0, s.flow.shape[0] - 1, min(MAX_WINDOWS, s.flow.shape[0])).round().astype(int))
     few = _Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick])
     plan.append(("valve", {"flow", "speed", "torque"}, _valve_relation, few))
     for relation, needs, make, signals in plan:
@@ -323,3 +327,51 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     rms = {f"rms_{r}": f"{fit.rms_before[r]:.3g}->{fit.rms_after[r]:.3g}" for r in fit.rms_before}
     event(_log, "unit identified", logging.INFO, windows=result.windows, **rms)
     return result
+
+
+def valve_error(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
+                viscosity_coefficient: float = 0.04) -> float:
+    """Mean squared block residual of the valve relation (Eqs. 1–5) at parameters ``p`` on raw healthy windows,
+    (L/min)²: how well a unit fit explains windows it was not fitted to (held-out error, commissioning's choice
+    of supply, :func:`hydrowatch.condition.commission.identify_for_commissioning`).
+
+    Raises
+    ------
+    DataError
+        With fewer than 2 valid windows, or without the flow, speed and torque the relation needs.
+    """
+    w = check_windows(np.asarray(windows, dtype=np.float64), np.asarray(windows).shape[1])
+    missing = {"flow", "speed", "torque"} - set(sensors)
+    if missing:
+        raise DataError(f"the valve relation needs flow, speed and torque. Missing: {', '.join(sorted(missing))}.")
+    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
+    if ok.sum() < 2:
+        raise DataError(f"a held-out error needs at least 2 valid windows. Got {int(ok.sum())}.")
+    residual, _ = _valve_relation(_signals(w[ok], viscosity_coefficient))
+    return float(np.mean(residual(p) ** 2))
+
+
+DRAWN_QUANTILE = 0.995
+"""Quantile of the block-mean pump draw taken as the most the recording drew from the pump (:func:`drawn_flow`):
+robust to the sensor noise on one block, which the maximum is not."""
+
+
+def drawn_flow(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
+               viscosity_coefficient: float = 0.04) -> float:
+    """The most flow the recording drew from the pump, m³/s: the :data:`DRAWN_QUANTILE` of block means of
+    |Q| + C·Ps (Eqs. 1, 5: the pump delivers the valve flow, its own and the valve's leakage and the relief's share,
+    so Dp·ωp is at least this), with Ps from the supply line integrated at ``p`` (:func:`parity.supply_and_valve_flow`).
+
+    A healthy recording that never drives the pump to its limit leaves Dp to its prior; this is what it does tell:
+    a lower bound on the pump's capacity (:func:`hydrowatch.condition.commission.identify_for_commissioning`).
+    """
+    w = check_windows(np.asarray(windows, dtype=np.float64), np.asarray(windows).shape[1])
+    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
+    if ok.sum() < 1:
+        raise DataError("the pump's draw needs at least 1 valid window. Got 0.")
+    s = _signals(w[ok], viscosity_coefficient)
+    pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
+    leakage = (p.Cp + p.Cpl + p.Cvl) * s.leak.reshape(-1)
+    ps, _ = parity.supply_and_valve_flow(p.Kq * parity.spool_position(s.voltage, p), pl, p, leakage,
+                                         np.full(s.flow.shape[0], p.Pc))
+    return float(np.quantile(parity.block_means(np.abs(s.flow) + leakage[:, None] * ps), DRAWN_QUANTILE))
