@@ -83,7 +83,8 @@ def test_flat_or_short_histories_give_no_forecast():
         assert f.alert_in_s is None and f.reason is not None and f.reason.startswith("too flat")
     tiny = 0.001 * np.expm1(6.0 * t / t[-1]) / np.expm1(6.0)  # noise-level curvature must not be extrapolated
     f = forecast_alert(t, _noisy(tiny, 9, sigma=0.002))
-    assert f.alert_in_s is None and "rose" in f.reason
+    assert f.alert_in_s is None and "rose" in f.reason and f.ci95 == (None, None)  # no bootstrap for a flat rise
+    assert np.isfinite(f.rate_per_h) and f.model in ("linear", "exp") and f.points == t.size
     f = forecast_alert(t[:6], np.linspace(0.1, 0.9, 6))
     assert f.alert_in_s is None and f.reason.startswith("too short") and f.to_dict()["ci95"] == [None, None]
     assert forecast_alert(t, np.full(t.size, np.nan)).reason.startswith("too short")
