@@ -123,3 +123,19 @@ def verdict_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
         row["degradation"] = None if parts is None else {
             d["fault"]: {"value": d["index"], "ci95": [d["low"], d["high"]]} for d in parts}
     return rows
+
+
+def forecast_parts(batch: pa.RecordBatch) -> tuple[float | None, dict[str, dict[str, Any]]]:
+    """A ``forecast`` message as ``score --json``'s summary ``forecast`` writes it: the start of the window it counts
+    from, s (None for an empty message), and fault → ``{"alert_in_s", "ci95": [lo, hi], "rate_per_h", "level",
+    "model", "points", "reset_at_s"}`` (+ ``reason`` when there is no forecast)."""
+    rows = batch.to_pylist()
+    parts = {}
+    for r in rows:
+        part = {"alert_in_s": r["alert_in_s"], "ci95": [r.get("low_s"), r.get("high_s")],
+                "rate_per_h": r.get("rate_per_h"), "level": r.get("level"), "model": r["model"], "points": r["points"],
+                "reset_at_s": r.get("reset_at")}
+        if r.get("reason") is not None:
+            part["reason"] = r["reason"]
+        parts[r["fault"]] = part
+    return (float(rows[0]["window_start"]) if rows else None), parts
