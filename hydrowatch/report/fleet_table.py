@@ -139,3 +139,37 @@ def forecast_parts(batch: pa.RecordBatch) -> tuple[float | None, dict[str, dict[
             part["reason"] = r["reason"]
         parts[r["fault"]] = part
     return (float(rows[0]["window_start"]) if rows else None), parts
+
+
+FORECAST_KEYS = ("rate_per_h", "alert_in_s", "reason")
+"""What a part's entry in :func:`wear_parts` takes from its forecast (its ``ci95`` becomes ``alert_ci95``)."""
+
+
+def wear_parts(degradation: Mapping[str, Mapping[str, Any]] | None,
+               forecast: Mapping[str, Mapping[str, Any]] | None) -> dict[str, dict[str, Any]] | None:
+    """Each part's wear as an operator reads it, most urgent first: the latest window's index (``value``, ``ci95``,
+    from ``health_verdict`` v2) with the machine's forecast (``rate_per_h`` [index/h], ``alert_in_s`` [s],
+    ``alert_ci95``, ``reason`` when there is no forecast, from ``…/forecast``); None when there is neither.
+
+    Order: parts with a forecast of the alert, soonest first (0: already beyond it); then the others by index,
+    highest first (a part at 0.9 that is too flat to forecast needs a look before one at 0.1).
+    """
+    if not degradation and not forecast:
+        return None
+    parts: dict[str, dict[str, Any]] = {}
+    for fault, d in (degradation or {}).items():
+        parts[fault] = dict(d)
+    for fault, f in (forecast or {}).items():
+        part = parts.setdefault(fault, {"value": f.get("level"), "ci95": None})
+        part.update({k: f.get(k) for k in FORECAST_KEYS if f.get(k) is not None})
+        if f.get("alert_in_s") is not None:
+            part["alert_ci95"] = f.get("ci95")
+
+    def order(item: tuple[str, dict[str, Any]]) -> tuple[float, float, str]:
+        fault, p = item
+        alert = p.get("alert_in_s")
+        value = p.get("value")
+        return (float(alert) if alert is not None else float("inf"),
+                -float(value) if value is not None else 0.0, fault)
+
+    return dict(sorted(parts.items(), key=order))
