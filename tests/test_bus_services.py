@@ -274,3 +274,27 @@ def test_trainer_answers_a_stop_at_once_even_mid_training(tmp_path: Path) -> Non
     finally:
         trainer.kill()
     assert not (tmp_path / "model" / "parity").exists()  # the last method of the training never got there
+
+
+def test_plant_degrade_makes_a_machine_wear_with_its_label_following() -> None:
+    """``plant --degrade m001=load:0:1.2:10``: m001's load wears from new to beyond the alert over 10 s, its label
+    going healthy → load_warning → load_alert; m000 stays healthy."""
+    port = free_port()
+    with open_session(BusSettings(port=port)) as session, Subscriber(session, f"hydro/{FLEET}/*/sensors") as sub:
+        plant = start("services.plant", "--fleet", FLEET, "--machines", 2, "--seconds", 15, "--speed", "inf",
+                      "--degrade", "m001=load:0:1.2:10", "--wait-subscribers", 30, "--bus-port", port)
+        labels: dict[str, list[tuple[float, str]]] = {"m000": [], "m001": []}
+        deadline = time.monotonic() + 90
+        while sum(map(len, labels.values())) < 300 and time.monotonic() < deadline:
+            message = sub.recv(timeout=1.0)
+            if message is not None:
+                t, channels = arrays_from_sensor_chunk(message.batch)
+                labels[message.key.machine].append((float(t[0]), str(channels["state"][0])))
+        assert plant.wait(timeout=60) == 0
+    assert {s for _, s in labels["m000"]} == {"healthy"}
+    worn = [s for _, s in sorted(labels["m001"])]
+    assert len(worn) == 150 and worn[0] == "healthy" and worn[-1] == "load_alert"
+    firsts = [worn.index(s) for s in ("healthy", "load_warning", "load_alert")]
+    assert firsts == sorted(firsts) and worn[firsts[1]:firsts[2]] == ["load_warning"] * (firsts[2] - firsts[1])
+    # the index follows the path: warning (drop 7.5-22.5 %, index 0.25-0.75) from ~2 s to ~6 s of 10
+    assert 15 <= firsts[1] <= 25 and 55 <= firsts[2] <= 70, firsts
