@@ -212,3 +212,24 @@ def test_scorer_service_publishes_each_machines_forecast(parity: dict, wearing: 
                                                                                            rel=5e-3, abs=1.0)
     assert all(parts["alert_in_s"] is None and parts["reason"] for _, found in by_machine["healthy"]
                for parts in found.values())
+
+
+def test_score_logs_its_degradation_index_and_forecast_as_mlflow_metrics(parity: dict, wearing: dict,
+                                                                        tmp_path, capsys) -> None:
+    import mlflow
+
+    path = write_recording(wearing["worn"], tmp_path / "worn.mcap")
+    assert main(["score", "--model", str(parity["out"]), "--data", str(path), "--json", "--log-run",
+                 "--tracking-uri", parity["uri"], "--experiment", "scored"]) == 0
+    printed = json.loads(capsys.readouterr().out)  # the contract's output is unchanged
+    assert printed["summary"]["forecast"] == wearing["scored"]["summary"]["forecast"]
+    mlflow.set_tracking_uri(parity["uri"])
+    run, = mlflow.search_runs(experiment_names=["scored"], output_format="list")
+    metrics, params = run.data.metrics, run.data.params
+    assert params["model_version"] == printed["summary"]["model_version"] and params["smoothing"] == "12"
+    assert metrics["windows"] == 120 and metrics["forecast.load.alert_in_s"] == printed["summary"]["forecast"][
+        "load"]["alert_in_s"] and "forecast.pump_leak.alert_in_s" not in metrics
+    history = mlflow.MlflowClient(parity["uri"]).get_metric_history(run.info.run_id, "degradation.load")
+    index = [w["degradation"]["load"]["value"] for w in printed["windows"]]
+    assert [m.step for m in sorted(history, key=lambda m: m.step)] == list(range(120))
+    assert [m.value for m in sorted(history, key=lambda m: m.step)] == pytest.approx(index)
