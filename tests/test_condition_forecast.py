@@ -129,10 +129,11 @@ def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
     verdict = Verdict("healthy", 1.0, {"healthy": 1.0})
     due: dict[str, list[int]] = {}
     for i in range(12):
-        for m in ("f/a", "f/b", "f/c"):
-            degradation = None if i == 5 else {"load": {"value": 0.0, "ci95": [0.0, 0.0]}}
+        for m in ("f/a", "f/b", "f/c", "f/d"):  # f/d's sensors index no part: no forecast messages
+            degradation = None if i == 5 else {} if m == "f/d" else {"load": {"value": 0.0, "ci95": [0.0, 0.0]}}
             for item in fleet.update([WindowVerdict(m, i * HOP, (i + 1) * HOP, verdict, None, degradation)]):
                 due.setdefault(item.machine, []).append(i)
+    assert set(due) == {"f/a", "f/b", "f/c"} and fleet.stream("f/d") is not None
     assert all(len(v) in (2, 3) and np.all(np.diff(v) == np.where(np.diff(v) > 4, 5, 4)) for v in due.values())
     assert len({v[0] for v in due.values()}) > 1  # the machines' phases differ
     with pytest.raises(ParameterError, match="every must be an integer >= 1"):

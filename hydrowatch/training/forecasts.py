@@ -83,7 +83,8 @@ class FleetForecasts:
 
     def update(self, verdicts: Sequence[WindowVerdict]) -> list[MachineForecast]:
         """Add the windows' indices (windows without one are skipped, as ``score``'s forecast skips them) and return
-        the forecasts that fall due, in order."""
+        the forecasts that fall due, in order (none for a machine whose windows index no part: sensors that test no
+        relation)."""
         out = []
         for item in verdicts:
             if item.degradation is None:
@@ -94,6 +95,6 @@ class FleetForecasts:
                 self._count[item.machine] = zlib.crc32(item.machine.encode()) % self.every if self.stagger else 0
             stream.update(item.start_s, item.degradation)
             self._count[item.machine] += 1
-            if self._count[item.machine] % self.every == 0:
-                out.append(MachineForecast(item.machine, item.start_s, stream.get(), len(stream)))
+            if self._count[item.machine] % self.every == 0 and (parts := stream.get()):  # none: no part indexed
+                out.append(MachineForecast(item.machine, item.start_s, parts, len(stream)))
         return out
