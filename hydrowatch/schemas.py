@@ -292,8 +292,11 @@ HEALTH_VERDICT = schema_by_name("health_verdict")
 """One verdict per window: state, probabilities, window bounds, model version."""
 STATUS = schema_by_name("status")
 """Heartbeat of a service: status string and message counters."""
+FORECAST = schema_by_name("forecast")
+"""When each part of one machine will reach the alert, one row per part (the scorer, every few windows)."""
 
 __all__ = [
+    "FORECAST",
     "HEALTH_VERDICT",
     "KL_WINDOW",
     "SCHEMA_VERSION",

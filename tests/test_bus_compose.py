@@ -85,9 +85,12 @@ def test_up_hands_each_service_only_flags_it_takes(tmp_path: Path) -> None:
     # `up --services plant,record,trainer,scorer` once gave the trainer bus flags it does not take (issue 18)
     parser = argparse.ArgumentParser()
     up.add_arguments(parser)
-    args = parser.parse_args(["--services", ",".join(SERVICES), "--out", str(tmp_path), "--tracking-uri", "sqlite://"])
+    args = parser.parse_args(["--services", ",".join(SERVICES), "--out", str(tmp_path), "--tracking-uri", "sqlite://",
+                              "--degrade", "m001=load:0:1.2:600", "--degrade", "pump_leak:0:1:900:exp"])
     for spec in up.service_specs(args, 7555):
         parsed = parse_as_service(spec.name, list(spec.argv))
+        if spec.name == "plant":  # the fleet's wearing machines go to the plant
+            assert parsed.degrade == ["m001=load:0:1.2:600", "pump_leak:0:1:900:exp"]
         if hasattr(parsed, "connect"):  # on the bus: a client of up's router
             router = BusSettings(mode="router", port=7555).to_json()["listen"]["endpoints"]
             assert settings_from_args(parsed).resolved_mode == "client" and list(parsed.connect) == router

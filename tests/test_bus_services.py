@@ -274,3 +274,58 @@ def test_trainer_answers_a_stop_at_once_even_mid_training(tmp_path: Path) -> Non
     finally:
         trainer.kill()
     assert not (tmp_path / "model" / "parity").exists()  # the last method of the training never got there
+
+
+def test_plant_degrade_makes_a_machine_wear_with_its_label_following() -> None:
+    """``plant --degrade m001=load:0:1.2:10``: m001's load wears from new to beyond the alert over 10 s, its label
+    going healthy → load_warning → load_alert; m000 stays healthy."""
+    port = free_port()
+    with open_session(BusSettings(port=port)) as session, Subscriber(session, f"hydro/{FLEET}/*/sensors") as sub:
+        plant = start("services.plant", "--fleet", FLEET, "--machines", 2, "--seconds", 15, "--speed", "inf",
+                      "--degrade", "m001=load:0:1.2:10", "--wait-subscribers", 30, "--bus-port", port)
+        labels: dict[str, list[tuple[float, str]]] = {"m000": [], "m001": []}
+        deadline = time.monotonic() + 90
+        while sum(map(len, labels.values())) < 300 and time.monotonic() < deadline:
+            message = sub.recv(timeout=1.0)
+            if message is not None:
+                t, channels = arrays_from_sensor_chunk(message.batch)
+                labels[message.key.machine].append((float(t[0]), str(channels["state"][0])))
+        assert plant.wait(timeout=60) == 0
+    assert {s for _, s in labels["m000"]} == {"healthy"}
+    worn = [s for _, s in sorted(labels["m001"])]
+    assert len(worn) == 150 and worn[0] == "healthy" and worn[-1] == "load_alert"
+    firsts = [worn.index(s) for s in ("healthy", "load_warning", "load_alert")]
+    assert firsts == sorted(firsts) and worn[firsts[1]:firsts[2]] == ["load_warning"] * (firsts[2] - firsts[1])
+    # the index follows the path: warning (drop 7.5-22.5 %, index 0.25-0.75) from ~2 s to ~6 s of 10
+    assert 15 <= firsts[1] <= 25 and 55 <= firsts[2] <= 70, firsts
+
+
+def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() -> None:
+    from hydrowatch.bus import Publisher, key
+    from hydrowatch.condition.forecast import forecast_alert
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.forecasts import MachineForecast
+    from hydrowatch.training.messages import forecast_batch, verdict_batch
+    from hydrowatch.verdict import Verdict
+
+    t = np.arange(0.0, 1800.0, 5.0)
+    index = {"load": {"value": 0.6, "ci95": [0.55, 0.65]}, "valve_coil": {"value": 0.0, "ci95": [-0.05, 0.05]}}
+    health = verdict_batch(WindowVerdict("f1/m7", 1795.0, 1800.0, Verdict("load_warning", 0.9), None, index), "v")
+    forecast = forecast_batch(MachineForecast("f1/m7", 1795.0, {"load": forecast_alert(t, 0.6 * t / t[-1]),
+                                                               "valve_coil": forecast_alert(t, 0.0 * t)}, t.size), "v")
+    port = free_port()
+    watch = subprocess.Popen([sys.executable, "-m", "hydrowatch", "watch", "--fleet", FLEET, "--seconds", "8",
+                              "--bus-port", str(port)], stdout=subprocess.PIPE, text=True)
+    with open_session(BusSettings(port=port)) as session, Publisher(session) as publisher:
+        assert publisher.wait_for_subscribers([key(FLEET, "m7", t) for t in ("health", "forecast")], timeout=30)
+        while watch.poll() is None:  # as a scorer does, again and again (the first may come before all links are up)
+            publisher.put(key(FLEET, "m7", "health"), health)
+            publisher.put(key(FLEET, "m7", "forecast"), forecast)
+            time.sleep(0.5)
+        out, _ = watch.communicate(timeout=60)
+    assert watch.returncode == 0
+    lines = out.splitlines()
+    assert any(line.startswith("f1/m7") and "load_warning" in line for line in lines), out
+    worn = lines[lines.index("wear (most urgent first)") + 1]
+    assert worn.startswith("f1/m7") and "load 0.60 [0.55–0.65]" in worn and "alert in 20 min" in worn, out
+    assert "valve_coil" not in worn  # index 0 and no forecast: not worn

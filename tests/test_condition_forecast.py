@@ -83,7 +83,8 @@ def test_flat_or_short_histories_give_no_forecast():
         assert f.alert_in_s is None and f.reason is not None and f.reason.startswith("too flat")
     tiny = 0.001 * np.expm1(6.0 * t / t[-1]) / np.expm1(6.0)  # noise-level curvature must not be extrapolated
     f = forecast_alert(t, _noisy(tiny, 9, sigma=0.002))
-    assert f.alert_in_s is None and "rose" in f.reason
+    assert f.alert_in_s is None and "rose" in f.reason and f.ci95 == (None, None)  # no bootstrap for a flat rise
+    assert np.isfinite(f.rate_per_h) and f.model in ("linear", "exp") and f.points == t.size
     f = forecast_alert(t[:6], np.linspace(0.1, 0.9, 6))
     assert f.alert_in_s is None and f.reason.startswith("too short") and f.to_dict()["ci95"] == [None, None]
     assert forecast_alert(t, np.full(t.size, np.nan)).reason.startswith("too short")
@@ -95,3 +96,45 @@ def test_already_beyond_the_alert_reads_zero():
     t = np.arange(0.0, 1800.0, HOP)
     f = forecast_alert(t, _noisy(1.1 + 0.1 * t / 1800.0, 6))
     assert f.alert_in_s == 0.0 and f.level > 1.0
+
+
+def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
+    from hydrowatch.condition.forecast_stream import ForecastStream
+    from hydrowatch.errors import ParameterError
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.forecasts import FleetForecasts
+    from hydrowatch.verdict import Verdict
+
+    t = np.arange(0.0, 3600.0, HOP)
+    load = np.round(_noisy(0.6 * t / t[-1], 3), 4)
+    coil = np.round(_noisy(np.zeros(t.size), 4), 4)
+    blamed = np.arange(t.size) % 7 == 0  # windows where a look-alike was blamed: not the coil's own estimate
+    stream = ForecastStream(capacity=500)
+    for i in range(t.size):
+        stream.update(float(t[i]), {"load": {"value": load[i], "ci95": [0.0, 1.0]},
+                                    "valve_coil": {"value": 0.0 if blamed[i] else coil[i], "measured": not blamed[i]}})
+    kept_t, kept = stream.history()
+    assert len(stream) == 500 and kept_t.tolist() == t[-500:].tolist() and stream.nbytes == 500 * (8 + 6 * 4)
+    assert np.isnan(kept[blamed[-500:], 5]).all() and np.isnan(kept[:, 1]).all()  # pump_leak never seen: NaN
+    got = stream.get()
+    assert set(got) == {"load", "valve_coil"}  # only the parts seen are forecast
+    want = forecast_alert(t[-500:], load[-500:])
+    assert got["load"].alert_in_s == pytest.approx(want.alert_in_s, rel=1e-6)
+    assert got["load"].alert_in_s == pytest.approx(6000.0 - t[-1], rel=0.2)
+    assert got["valve_coil"].alert_in_s is None and got["valve_coil"].points == (~blamed[-500:]).sum()
+    with pytest.raises(ParameterError, match="capacity must be an integer >= 1"):
+        ForecastStream(capacity=0)
+    # the schedule: every 4 windows with an index, at each machine's own phase; windows without one are skipped
+    fleet = FleetForecasts(every=4)
+    verdict = Verdict("healthy", 1.0, {"healthy": 1.0})
+    due: dict[str, list[int]] = {}
+    for i in range(12):
+        for m in ("f/a", "f/b", "f/c", "f/d"):  # f/d's sensors index no part: no forecast messages
+            degradation = None if i == 5 else {} if m == "f/d" else {"load": {"value": 0.0, "ci95": [0.0, 0.0]}}
+            for item in fleet.update([WindowVerdict(m, i * HOP, (i + 1) * HOP, verdict, None, degradation)]):
+                due.setdefault(item.machine, []).append(i)
+    assert set(due) == {"f/a", "f/b", "f/c"} and fleet.stream("f/d") is not None
+    assert all(len(v) in (2, 3) and np.all(np.diff(v) == np.where(np.diff(v) > 4, 5, 4)) for v in due.values())
+    assert len({v[0] for v in due.values()}) > 1  # the machines' phases differ
+    with pytest.raises(ParameterError, match="every must be an integer >= 1"):
+        FleetForecasts(every=0)

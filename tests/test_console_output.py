@@ -56,6 +56,9 @@ DEMO = {
                    "why": "most probable trained state (p = 0.93)"},
                   {"machine": "m4", "state": "load_warning", "since_s": 2.5, "probability": 0.81,
                    "why": "most probable trained state (p = 0.81)"}],
+    "wear": {"m4": {"motor_leak": {"value": 0.48, "ci95": [0.41, 0.55], "rate_per_h": 1.62, "alert_in_s": 360.0,
+                                   "alert_ci95": [240.0, None]},
+                    "load": {"value": 0.01, "ci95": [-0.03, 0.05], "reason": "too flat: the index rose 0.001"}}},
     "seconds": 181.6,
 }
 
@@ -146,6 +149,7 @@ def test_json_is_unchanged_when_stdout_is_not_a_terminal_or_json_is_asked(
               "  m2       pump_leak_alert since 64 s: most probable trained state (p = 0.93)",
               "  m4       load_warning since 2 s", "healthy: m1, m3", "champion: parity",
               "bj       training 99.0 %, duty_cycle 28.0 %",
+              "  m4       wear: motor_leak 0.48 [0.41–0.55] ↑1.62/h alert in 6 min (95 %: 4 min–open)",
               "next: open demo/report.html"]),
 ])
 def test_a_terminal_gets_a_short_summary_with_the_key_numbers(
@@ -192,3 +196,33 @@ def test_the_fleet_comes_most_urgent_first_with_since_when_and_why() -> None:
     rows = section.parts[1]
     assert rows.index("<td>m2</td>") < rows.index("<td>m5</td>") < rows.index("<td>m1</td>") < rows.index(
         "<td>m0</td>")
+
+
+def test_each_machines_wear_comes_most_urgent_first_in_watch_and_the_demo_report() -> None:
+    """FleetWear joins the verdicts' index and the forecasts: machines by their soonest alert, parts soonest alert
+    first then by index; watch prints the worn parts, the demo report tabulates them."""
+    from hydrowatch.report.demo import fleet_section
+    from hydrowatch.report.fleet_table import FleetTable, FleetWear, render_wear
+
+    wear = FleetWear()
+    index = {"load": {"value": 0.02, "ci95": [-0.02, 0.06]}, "motor_leak": {"value": 0.48, "ci95": [0.41, 0.55]},
+             "valve_coil": {"value": 0.3, "ci95": [0.2, 0.4]}}
+    wear.add_verdict("f/a", {"state": "healthy", "degradation": index})
+    wear.add_verdict("f/a", {"state": "healthy", "degradation": None})  # a verdict without one keeps the last
+    wear.add_forecast("f/a", {"motor_leak": {"alert_in_s": 3600.0, "ci95": [3000.0, 4500.0], "rate_per_h": 0.5},
+                              "load": {"alert_in_s": None, "ci95": [None, None], "reason": "too flat: x"}})
+    wear.add_verdict("f/b", {"state": "healthy", "degradation": {"load": {"value": 0.9, "ci95": [0.85, 0.95]}}})
+    wear.add_forecast("f/b", {"load": {"alert_in_s": 100.0, "ci95": [50.0, 200.0], "rate_per_h": 3.0}})
+    wear.add_verdict("f/c", {"state": "healthy", "degradation": {"load": {"value": 0.01, "ci95": [0.0, 0.02]}}})
+    found = wear.by_machine()
+    assert list(found) == ["f/b", "f/a", "f/c"] and list(found["f/a"]) == ["motor_leak", "valve_coil", "load"]
+    text = render_wear(found).splitlines()
+    assert text[0] == "wear (most urgent first)" and len(text) == 3  # f/c has nothing worn to show
+    assert text[1].startswith("f/b") and "load 0.90 [0.85–0.95] ↑3.00/h alert in 100 s (95 %: 50 s–3 min)" in text[1]
+    assert text[2].index("motor_leak 0.48") < text[2].index("valve_coil 0.30") and "load" not in text[2]
+    live = {"table": FleetTable(), "timelines": {}, "truth": {}, "wear": found}
+    cells = fleet_section(live, ["healthy"]).parts[4]
+    assert cells.index("<td>f/b</td>") < cells.index("<td>motor_leak</td>") < cells.index("<td>valve_coil</td>")
+    assert "alert in 60 min (95 %: 50 min–75 min)" in cells
+    from hydrowatch.report.fleet_table import wear_text
+    assert wear_text("load", {"value": 1.02, "alert_in_s": 0.0, "alert_ci95": [0.0, 0.0]}) == "load 1.02 at alert"

@@ -63,9 +63,10 @@ def test_schemas_carry_name_version_units_and_descriptions():
 
 def test_schema_files_are_plain_json_with_every_field_documented():
     files = sorted(p.name for p in schemas_dir().glob("*.json"))
-    assert files == ["health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json", "sensor_chunk.v1.json",
-                     "status.v1.json"]
-    assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status")] == [1, 1, 2, 1]
+    assert files == ["forecast.v1.json", "health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json",
+                     "sensor_chunk.v1.json", "status.v1.json"]
+    assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status", "forecast")] == [
+        1, 1, 2, 1, 1]
     readme = (schemas_dir() / "README.md").read_text()
     for name in files:
         spec = json.loads((schemas_dir() / name).read_text())
@@ -226,3 +227,23 @@ def test_other_messages_validate_and_round_trip():
     )
     with pytest.raises(DataError, match="must be 'status'"):
         validate(kl, STATUS)
+
+
+def test_a_forecast_message_round_trips_with_nulls_where_there_is_no_forecast():
+    from hydrowatch.condition.forecast import forecast_alert
+    from hydrowatch.report.fleet_table import forecast_parts
+    from hydrowatch.schemas import FORECAST
+    from hydrowatch.training.forecasts import MachineForecast
+    from hydrowatch.training.messages import forecast_batch
+
+    t = np.arange(0.0, 1800.0, 5.0)
+    wearing = forecast_alert(t, 0.6 * t / t[-1] + 0.01 * np.sin(t))  # 0.6 after 30 min: the alert ~20 min later
+    parts = {"load": wearing, "motor_leak": forecast_alert(t[:4], np.zeros(4))}
+    batch = forecast_batch(MachineForecast("f/m", float(t[-1]), parts, t.size), "sha256:x")
+    validate(batch, FORECAST, require_metadata=True)
+    start, back = forecast_parts(decode_batch(encode_batch(batch), FORECAST))
+    assert start == t[-1] and back == {fault: f.to_dict() for fault, f in parts.items()}
+    assert back["load"]["alert_in_s"] == pytest.approx(1200.0, rel=0.05) and back["load"]["model"] == "linear"
+    assert back["motor_leak"]["alert_in_s"] is None and back["motor_leak"]["rate_per_h"] is None
+    assert back["motor_leak"]["reason"].startswith("too short")
+    assert batch.column("history_windows").to_pylist() == [t.size, t.size]

@@ -131,11 +131,13 @@ def test_gap_nan_and_out_of_order_invalidate_the_window(bundle_dir: Path, test_r
 
 def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], samples: int,
                       want: int, extra: tuple[str, ...] = (),
-                      skip: frozenset[tuple[int, int]] = frozenset()) -> tuple[int, dict[str, list], object]:
+                      skip: frozenset[tuple[int, int]] = frozenset(),
+                      forecasts: list | None = None) -> tuple[int, dict[str, list], object]:
     """Start the scorer service on ``model`` (more arguments: ``extra``), publish ``samples`` of each recording as
     0.5 s chunks; the chunks ``skip`` names (recording index, first sample) stay off the bus, in the history.
 
-    Returns the exit code, the health rows per machine (until ``want`` rows) and the first kl message.
+    Returns the exit code, the health rows per machine (until ``want`` rows) and the first kl message; the forecast
+    messages received meanwhile are appended to ``forecasts`` when given.
     """
     from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, wait_alive
     from hydrowatch.bus.history import ChunkHistory, HistoryServer
@@ -150,7 +152,8 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
         history = ChunkHistory()
         with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
                 HistoryServer(session, "hydro/t/*/sensors", history), \
-                Subscriber(session, "hydro/t/*/health") as health, Subscriber(session, "hydro/t/*/kl") as kl:
+                Subscriber(session, "hydro/t/*/health") as health, Subscriber(session, "hydro/t/*/kl") as kl, \
+                Subscriber(session, "hydro/t/*/forecast") as forecast:
             assert wait_alive(session, "scorer", "t", 1, timeout=90), "scorer did not come up"
             for start in range(0, samples, 100):
                 for i, r in enumerate(recordings):
@@ -165,6 +168,8 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
                 if message is not None:
                     got.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
             first_kl = kl.recv(timeout=5)
+            while forecasts is not None and (message := forecast.recv(timeout=1.0)) is not None:
+                forecasts.append(message)
     finally:
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(timeout=60)

@@ -126,3 +126,110 @@ def test_parity_scores_give_a_degradation_index_per_fault_and_a_forecast(parity:
         assert all(set(f) >= {"alert_in_s", "ci95", "rate_per_h"} for f in forecast.values())
         assert forecast["load"]["alert_in_s"] is None  # 60 s of a constant state: too short to forecast
         json.dumps(result)
+
+
+WEAR_SECONDS = 600
+"""A load wearing from index 0 to 1.3 over 900 s, watched for its first 600 s (120 windows; index 0.87 at the end,
+the alert 92 s later), and a healthy machine on the same duty cycle."""
+
+
+@pytest.fixture(scope="module")
+def wearing(parity: dict) -> dict:
+    from hydrowatch.plant.paths import parse_degradation, simulate_path
+
+    command = duty_cycle(WEAR_SECONDS, volts=(0.5, 3.5), seed=31)
+    worn = simulate_path(parse_degradation("load:0:1.3:900"), command, seed=31)
+    healthy = next(iter(simulate_states(["healthy"], command=command, seed=32)))
+    return {"worn": worn, "healthy": healthy, "scored": score_recording(ModelBundle.load(parity["out"]), worn)}
+
+
+def _stream_forecasts(bundle: ModelBundle, recording, every: int) -> list:
+    """``recording`` through the online scorer as one machine, 0.5 s chunks; the forecasts that fall due."""
+    from hydrowatch.training.forecasts import FleetForecasts
+
+    scorer, forecasts, out = OnlineScorer(bundle), FleetForecasts(every=every, stagger=False), []
+    for start in range(0, len(recording), 100):
+        chunk = Chunk("t/m", recording.t[start:start + 100], {c: recording[c][start:start + 100] for c in COLUMNS})
+        out += forecasts.update(scorer.update([chunk]))
+    return out
+
+
+def test_online_forecast_is_score_forecast_and_a_healthy_machine_forecasts_no_alert(parity: dict,
+                                                                                     wearing: dict) -> None:
+    from hydrowatch.io.codec import decode_batch, encode_batch
+    from hydrowatch.report.fleet_table import forecast_parts
+    from hydrowatch.schemas import FORECAST
+    from hydrowatch.training.messages import forecast_batch
+
+    bundle = ModelBundle.load(parity["out"])
+    worn = wearing["worn"]
+    online = _stream_forecasts(bundle, worn, every=12)
+    assert [len(f.parts) for f in online] == [6] * 10 and online[-1].history_windows == 120
+    # the last forecast (after window 120) and one after window 84 against score --json of the same windows
+    for due, offline in ((online[-1], wearing["scored"]), (online[6], score_recording(bundle, worn.slice(0, 84_000)))):
+        assert due.start_s == pytest.approx(offline["windows"][-1]["start_s"])
+        start_s, parts = forecast_parts(decode_batch(encode_batch(forecast_batch(due, bundle.version)), FORECAST))
+        assert start_s == pytest.approx(due.start_s) and set(parts) == set(offline["summary"]["forecast"])
+        for fault, want in offline["summary"]["forecast"].items():
+            got = parts[fault]
+            assert (got["alert_in_s"] is None) == (want["alert_in_s"] is None), (fault, got, want)
+            assert got.get("reason", "")[:9] == want.get("reason", "")[:9] and got["points"] == want["points"]
+            # online the index travels rounded to 1e-4 (score forecasts the unrounded values): 0.5 % or 1 s
+            if want["alert_in_s"] is not None:
+                assert got["alert_in_s"] == pytest.approx(want["alert_in_s"], rel=5e-3, abs=1.0), fault
+                assert got["ci95"] == pytest.approx(want["ci95"], rel=2e-2, abs=2.0), fault
+            assert got["rate_per_h"] == (None if want["rate_per_h"] is None else
+                                         pytest.approx(want["rate_per_h"], rel=1e-2, abs=1e-3)), fault
+    load = forecast_parts(forecast_batch(online[-1], bundle.version))[1]["load"]
+    truth = 900 / 1.3 - (online[-1].start_s - float(worn.t[0]))  # the path reaches 1.0 at 692 s
+    assert load["alert_in_s"] == pytest.approx(truth, rel=0.15) and load["ci95"][0] <= truth <= load["ci95"][1]
+    assert all(parts["alert_in_s"] is None for f, parts in forecast_parts(forecast_batch(
+        online[-1], bundle.version))[1].items() if f != "load")
+    healthy = _stream_forecasts(bundle, wearing["healthy"], every=12)
+    assert len(healthy) == 10
+    assert all(f.alert_in_s is None and f.reason is not None for due in healthy for f in due.parts.values())
+
+
+def test_scorer_service_publishes_each_machines_forecast(parity: dict, wearing: dict) -> None:
+    from hydrowatch.recording import Recording
+    from hydrowatch.report.fleet_table import forecast_parts
+
+    named = [Recording(r.t, r.channels, {**r.meta, "state": name}) for r, name in
+             ((wearing["worn"], "worn"), (wearing["healthy"], "healthy"))]
+    messages: list = []
+    code, got, _ = scorer_round_trip(parity["out"], named, COLUMNS, WEAR_SECONDS * 200, 2 * WEAR_SECONDS // 5,
+                                     ("--forecast-every", "12"), forecasts=messages)
+    assert code == 0 and {m: len(rows) for m, rows in got.items()} == {"worn": 120, "healthy": 120}
+    by_machine: dict[str, list] = {}
+    for message in messages:
+        assert message.batch.schema.metadata[b"hydrowatch.schema"] == b"forecast"
+        by_machine.setdefault(message.key.machine, []).append(forecast_parts(message.batch))
+    # --no-stagger: after windows 12, 24, ..., 120 of each machine
+    assert {m: len(v) for m, v in by_machine.items()} == {"worn": 10, "healthy": 10}
+    start_s, worn = by_machine["worn"][-1]
+    offline = wearing["scored"]["summary"]["forecast"]["load"]  # score --json of the same 120 windows
+    assert start_s == pytest.approx(595.0) and worn["load"]["alert_in_s"] == pytest.approx(offline["alert_in_s"],
+                                                                                           rel=5e-3, abs=1.0)
+    assert all(parts["alert_in_s"] is None and parts["reason"] for _, found in by_machine["healthy"]
+               for parts in found.values())
+
+
+def test_score_logs_its_degradation_index_and_forecast_as_mlflow_metrics(parity: dict, wearing: dict,
+                                                                        tmp_path, capsys) -> None:
+    import mlflow
+
+    path = write_recording(wearing["worn"], tmp_path / "worn.mcap")
+    assert main(["score", "--model", str(parity["out"]), "--data", str(path), "--json", "--log-run",
+                 "--tracking-uri", parity["uri"], "--experiment", "scored"]) == 0
+    printed = json.loads(capsys.readouterr().out)  # the contract's output is unchanged
+    assert printed["summary"]["forecast"] == wearing["scored"]["summary"]["forecast"]
+    mlflow.set_tracking_uri(parity["uri"])
+    run, = mlflow.search_runs(experiment_names=["scored"], output_format="list")
+    metrics, params = run.data.metrics, run.data.params
+    assert params["model_version"] == printed["summary"]["model_version"] and params["smoothing"] == "12"
+    assert metrics["windows"] == 120 and metrics["forecast.load.alert_in_s"] == printed["summary"]["forecast"][
+        "load"]["alert_in_s"] and "forecast.pump_leak.alert_in_s" not in metrics
+    history = mlflow.MlflowClient(parity["uri"]).get_metric_history(run.info.run_id, "degradation.load")
+    index = [w["degradation"]["load"]["value"] for w in printed["windows"]]
+    assert [m.step for m in sorted(history, key=lambda m: m.step)] == list(range(120))
+    assert [m.value for m in sorted(history, key=lambda m: m.step)] == pytest.approx(index)

@@ -136,3 +136,27 @@ def test_degradation_does_not_depend_on_how_the_stream_is_chunked():
     pieces = [fleet.step(command[a:b]) for a, b in ((0, 37), (37, 187), (187, 600), (600, 700))]
     np.testing.assert_array_equal(np.concatenate([p["speed"] for p in pieces], axis=1), whole["speed"])
     assert fleet.states == ["load_alert"]
+
+
+def test_wear_moves_a_simulators_rows_as_a_fleet_moves_its_paths():
+    from hydrowatch.plant.fleet import Wear
+    from services.plant import degradation_paths
+
+    path = DegradationPath("motor_leak", 0.0, 30.0, final_drop=0.36, shape="exp")
+    fleet = Fleet([MachineSpec("a"), MachineSpec("b", path=path)], seed=1)
+    wear = Wear({1: path}, {1: fleet.healthy[1]})
+    assert [i for i, _ in wear.due(0.0)] == [1] and wear.due(0.5) == [] and wear.due(0.999999999) != []
+    for t in (2.0, 15.0, 29.0, 40.0):  # the same parameters and labels as the fleet's at the same times
+        (row, parameters), = wear.due(t)
+        assert row == 1 and parameters == fleet._parameters_at(1, t)
+        assert wear.states(t, ["healthy", "x"]) == ["healthy", fleet.states[1]]
+    assert wear.states(40.0, ["healthy", "x"])[1] == "motor_leak_alert"
+    # --degrade of the plant service: named machines, then the others in order
+    paths = degradation_paths(["m002=load:0:1.2:60", "pump_leak:0.2:1:30:exp"], ["m000", "m001", "m002"])
+    assert sorted(paths) == ["m000", "m002"] and paths["m000"].shape == "exp" and paths["m002"].fault == "load"
+    with pytest.raises(ParameterError, match="MACHINE must be one of the fleet's machines"):
+        degradation_paths(["m9=load:0:1:60"], ["m000"])
+    with pytest.raises(ParameterError, match="at most one path per machine"):
+        degradation_paths(["load:0:1:60", "load:0:1:60"], ["m000"])
+    with pytest.raises(ParameterError, match="FROM must be a number"):
+        degradation_paths(["load:x:1:60"], ["m000"])

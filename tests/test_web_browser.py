@@ -177,7 +177,8 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
 
 
 def test_a_degradation_index_shows_when_a_verdict_carries_one() -> None:
-    """No message carries one yet (health_verdict v1): the pages show it as soon as one does (fed here directly)."""
+    """A verdict's index (health_verdict v2) and the machine's forecast (…/forecast), fed here directly: each part's
+    index, trend and time to alert, the soonest alert first, on the fleet page and the machine page."""
     import threading
 
     from hydrowatch.web.live import FleetLive
@@ -189,13 +190,16 @@ def test_a_degradation_index_shows_when_a_verdict_carries_one() -> None:
                                   "probabilities": {"healthy": 0.9}, "reason": None, "degradation": index})
     live.add_verdict("f1", "m1", {"window_start": 0.0, "window_end": 5.0, "state": "healthy", "probability": 0.9,
                                   "probabilities": {"healthy": 0.9}, "reason": None})
+    live.add_forecast("f1", "m0", {"motor_leak": {"alert_in_s": 900.0, "ci95": [600.0, 1500.0], "rate_per_h": 2.0,
+                                                  "level": 0.5}})
     with WebServer(live, threading.Condition()) as server, Chromium(width=1000, height=400) as browser:
         browser.navigate(server.url)
         browser.wait_for("window.hw.shown === 2", timeout=10)
         assert browser.evaluate("document.querySelector('th.degcol').hidden") is False
-        shown = "load 0.40 [0.30–0.50] ↑0.10/h alert in 6.0 h"
-        assert browser.evaluate("document.querySelector('#rows tr[data-id=\"f1/m0\"] td.degcol').textContent") == shown
+        shown = ["motor_leak 0.50 ↑2.00/h alert in 15 min", "load 0.40 [0.30–0.50] ↑0.10/h alert in 6.0 h"]
+        assert browser.evaluate("Array.from(document.querySelectorAll('#rows tr[data-id=\"f1/m0\"] td.degcol .deg'))"
+                                ".map((e) => e.textContent)") == shown
         browser.navigate(server.url + "machine?id=f1/m0")
         browser.wait_for("window.hw.updates > 0", timeout=10)
-        assert shown in browser.evaluate("document.getElementById('verdict').textContent")
+        assert "".join(shown) in browser.evaluate("document.getElementById('verdict').textContent")
         assert browser.exceptions() == []

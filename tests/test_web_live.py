@@ -227,3 +227,53 @@ def test_a_timeline_keeps_the_last_verdicts_in_order_and_states_that_come_later(
     assert d["p"] == [0.0, 0.0, 0.8]
     assert d["probabilities"] == {"healthy": [None, 0.5, 0.1], "load_alert": [None, 0.5, 0.1],
                                   "motor_alert": [None, None, 0.8]}
+
+
+def test_a_forecast_adds_trend_and_time_to_alert_to_each_part_most_urgent_first() -> None:
+    live = FleetLive()
+    index = {"load": {"value": 0.2, "ci95": [0.1, 0.3]}, "motor_leak": {"value": 0.8, "ci95": [0.7, 0.9]},
+             "valve_coil": {"value": 0.6, "ci95": [0.5, 0.7]}}
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy", degradation=index))
+    seq = live.seq
+    live.add_forecast("f1", "m0", {
+        "load": {"alert_in_s": 900.0, "ci95": [600.0, 1500.0], "rate_per_h": 1.1, "level": 0.21},
+        "motor_leak": {"alert_in_s": None, "ci95": [None, None], "rate_per_h": 0.01, "reason": "too flat: …"},
+        "valve_coil": {"alert_in_s": 7200.0, "ci95": [5000.0, None], "rate_per_h": 0.2},
+        "pump_leak": {"alert_in_s": None, "ci95": [None, None], "rate_per_h": None, "level": None,
+                      "reason": "too short: …"}})
+    assert live.changed(seq) == {"f1/m0"}
+    parts = live.row("f1/m0")["degradation"]
+    # soonest alert first, then the parts without one by index, highest first
+    assert list(parts) == ["load", "valve_coil", "motor_leak", "pump_leak"]
+    assert parts["load"] == {"value": 0.2, "ci95": [0.1, 0.3], "rate_per_h": 1.1, "alert_in_s": 900.0,
+                             "alert_ci95": [600.0, 1500.0]}
+    assert parts["motor_leak"]["reason"] == "too flat: …" and "alert_in_s" not in parts["motor_leak"]
+    assert parts["pump_leak"] == {"value": None, "ci95": None, "reason": "too short: …"}
+    live.add_verdict("f1", "m0", verdict(5.0, "healthy", degradation={**index, "load": {"value": 0.25,
+                                                                                          "ci95": [0.2, 0.3]}}))
+    assert live.row("f1/m0")["degradation"]["load"]["value"] == 0.25  # the latest index, the forecast kept
+    assert live.row("f1/m0")["degradation"]["load"]["alert_in_s"] == 900.0
+
+
+def test_the_web_service_takes_forecast_messages_into_the_rows() -> None:
+    import numpy as np
+
+    from hydrowatch.bus import Key, Message
+    from hydrowatch.condition.forecast import forecast_alert
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.forecasts import MachineForecast
+    from hydrowatch.training.messages import forecast_batch, verdict_batch
+    from hydrowatch.verdict import Verdict
+    from services.web import _take
+
+    t = np.arange(0.0, 1800.0, 5.0)
+    parts = {"load": forecast_alert(t, 0.6 * t / t[-1] + 0.01 * np.sin(t)), "valve_coil": forecast_alert(t, 0 * t)}
+    live = FleetLive()
+    index = {"load": {"value": 0.6, "ci95": [0.55, 0.65]}, "valve_coil": {"value": 0.0, "ci95": [-0.05, 0.05]}}
+    health = verdict_batch(WindowVerdict("f1/m0", 1795.0, 1800.0, Verdict("healthy", 0.9), None, index), "v")
+    forecast = forecast_batch(MachineForecast("f1/m0", 1795.0, parts, t.size), "v")
+    _take(live, [Message(Key("f1", "m0", topic), batch, b"", 0, 0)
+                 for topic, batch in (("health", health), ("forecast", forecast))])
+    row = live.row("f1/m0")["degradation"]
+    assert list(row) == ["load", "valve_coil"] and row["valve_coil"]["reason"].startswith("too flat")
+    assert row["load"]["alert_in_s"] == pytest.approx(1200.0, rel=0.05) and row["load"]["value"] == 0.6

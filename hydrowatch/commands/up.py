@@ -37,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fleet", default="fleet1", help="fleet id (default fleet1)")
     parser.add_argument("--machines", type=int, default=10, help="simulated machines (default 10)")
     parser.add_argument("--states", default="healthy", help="health states given to the machines in turn")
+    parser.add_argument("--degrade", action="append", default=[], metavar="[MACHINE=]FAULT:FROM:TO:SECONDS[:shape]",
+                        help="plant: a machine wearing along a path, as `hydrowatch plant --degrade` (repeatable)")
     parser.add_argument("--speed", default="1", help="plant speed: simulated s per wall-clock s, or inf")
     parser.add_argument("--seed", type=int, default=0, help="plant seed (default 0)")
     parser.add_argument("--out", type=Path, default=Path("recordings"), help="recorder output folder")
@@ -64,7 +66,8 @@ def service_specs(args: argparse.Namespace, port: int, http_port: int = WEB_PORT
     tracking = () if args.tracking_uri is None else ("--tracking-uri", args.tracking_uri)
     per_service = {
         "plant": ("--fleet", args.fleet, "--machines", str(args.machines), "--states", args.states,
-                  "--speed", str(args.speed), "--seed", str(args.seed), "--wait-subscribers", "10", *bus),
+                  "--speed", str(args.speed), "--seed", str(args.seed), "--wait-subscribers", "10",
+                  *(a for spec in args.degrade for a in ("--degrade", spec)), *bus),
         # files closed every half retraining period, so that the trainer finds readable ones
         "record": ("--fleet", args.fleet, "--out", str(args.out), *bus,
                    *(("--rotate-s", str(max(args.retrain / 2.0, 10.0))) if "trainer" in names else ())),

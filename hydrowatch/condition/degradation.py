@@ -34,6 +34,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -165,11 +166,18 @@ class Degradation:
         (a look-alike blamed for a while is neither wear nor a part replaced)."""
         return np.where(self.measured[fault], self.value[fault], np.nan)
 
-    def window(self, i: int) -> dict[str, dict[str, float | list[float]]]:
-        """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only."""
-        return {f: {"value": round(float(self.value[f][i]), 4),
-                    "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
-                for f in self.value if np.isfinite(self.value[f][i])}
+    def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
+        """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
+        with ``measured`` each entry also says whether the value is the part's own estimate (what a forecast of
+        the machine's history reads, :meth:`history`)."""
+        out: dict[str, dict[str, Any]] = {
+            f: {"value": round(float(self.value[f][i]), 4),
+                "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
+            for f in self.value if np.isfinite(self.value[f][i])}
+        if measured:
+            for f, entry in out.items():
+                entry["measured"] = bool(self.measured[f][i])
+        return out
 
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
@@ -260,9 +268,10 @@ class DegradationStream:
         self._sum = np.zeros(len(parity.VALVE_HYPOTHESES))
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
-               curvature: Mapping[str, float]) -> dict[str, dict[str, float | list[float]]]:
+               curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
         """The index of a valid window from its free fits (one window's values of
-        :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95"}}``, finite only."""
+        :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
+        only (``measured``: :meth:`Degradation.window`)."""
         f = self.features
         blamed = np.array([-1])
         if "valve" in f.relations_:
@@ -275,4 +284,4 @@ class DegradationStream:
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed)
-        return found.window(0)
+        return found.window(0, measured=True)

@@ -24,8 +24,9 @@ with the windows' times. Not specific to the parity method: any index series on 
    the index's systematic error (:data:`ALERT_SD`): the index's own scale is known to a few percent only.
 6. **When not to forecast** (``alert_in_s`` None with a ``reason``): fewer than :data:`MIN_POINTS` windows or less
    than ``min_span_s`` of operating time since the reset ("too short"); a fitted rise over the segment below
-   :data:`MIN_RISE`, a rate whose 95 % interval reaches 0, or a crossing further away than
-   :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
+   :data:`MIN_RISE` (decided from the fit, before the bootstrap: no interval, ``ci95`` (None, None); the
+   healthy parts of most machines cost a fit, not 200), a rate whose 95 % interval reaches 0, or a crossing further
+   away than :data:`HORIZON_FACTOR` × the history it rests on ("too flat").
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition.degradation import SYSTEMATIC
 from hydrowatch.errors import DataError
@@ -156,8 +158,8 @@ def reset_start(index: np.ndarray) -> int:
     if n < r + q:
         return 0
     positions = np.arange(r, n - q + 1)
-    before = np.array([np.median(v[i - r:i]) for i in positions])
-    after = np.array([np.median(v[i:i + q]) for i in positions])
+    before = np.median(sliding_window_view(v[:n - q], r), axis=1)  # v[i - r:i] for every position i
+    after = np.median(sliding_window_view(v[r:], q), axis=1)  # v[i:i + q]
     found = np.flatnonzero((after < RESET_NEAR_ZERO) & (before - after >= RESET_DROP))
     if not found.size:
         return 0
@@ -264,6 +266,11 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     bases, gammas, counts = _bases(x, span)
     alpha, beta, gamma, j = _fit(bases, gammas, counts, y)
     fitted = alpha + beta * bases[j]
+    model = "linear" if gamma == 0.0 else "exp"
+    rise = alpha - float(np.min(fitted))
+    if rise < MIN_RISE and alpha < ALERT:  # decided by the fit alone: no bootstrap (most parts of most machines)
+        return Forecast(None, (None, None), beta * 3600.0, model, alpha, int(v.size), reset_at,
+                        reason=f"too flat: the index rose {rise:.3f} < {MIN_RISE:g} over the history")
     residual = y - fitted
     rng = np.random.default_rng(seed)
     block = max(1, int(round(np.sqrt(x.size))))
@@ -274,7 +281,6 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
         resampled = np.concatenate([residual[s:s + block] for s in starts])[: x.size]
         a_b, b_b, g_b, _ = _fit(bases, gammas, counts, fitted + resampled)
         rates[b], crossings[b] = b_b, _crossing(a_b, b_b, g_b, levels[b])
-    model = "linear" if gamma == 0.0 else "exp"
     rate_h = beta * 3600.0
     lo, hi = (float(q) for q in np.quantile(np.minimum(crossings, NEVER), [0.025, 0.975]))
     ci = (lo if lo < NEVER else None, hi if hi < NEVER else None)
@@ -283,10 +289,8 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     if point == 0.0:
         return replace(fitted_now, alert_in_s=0.0, ci95=(0.0, ci[1] if ci[1] is not None else 0.0))
     low_rate = float(np.quantile(rates, 0.025))
-    rise = alpha - float(np.min(fitted))
-    if rise < MIN_RISE or low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
-        why = (f"the index rose {rise:.3f} < {MIN_RISE:g} over the history" if rise < MIN_RISE
-               else "the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
+    if low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
+        why = ("the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
                else f"the alert is further than {HORIZON_FACTOR:g}× the {span:.0f} s of history")
         return replace(fitted_now, reason=f"too flat: {why}")
     return replace(fitted_now, alert_in_s=float(point))

@@ -44,6 +44,7 @@ TOPIC_KINDS: dict[str, str] = {
     "kl": "kl_window",
     "health": "health_verdict",
     "status": "status",
+    "forecast": "forecast",
 }
 """Last part of a key expression → schema name."""
 

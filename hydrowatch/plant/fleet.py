@@ -13,7 +13,7 @@ samples, never inside one); labels follow the nearest named level of the current
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -123,6 +123,61 @@ class DegradationPath:
             x = np.expm1(EXP_GROWTH * x) / np.expm1(EXP_GROWTH)
         drop = self.start_drop + (self.final_drop - self.start_drop) * x
         return float(drop) if drop.ndim == 0 else drop
+
+
+def path_state(path: DegradationPath, drop: float) -> str:
+    """Health label of a machine on ``path`` at speed drop ``drop``: the nearest named level, ``healthy`` below it."""
+    return state_name(path.fault, level_for_speed_drop(drop)) if drop > 0 else "healthy"
+
+
+def worn_parameters(path: DegradationPath, healthy: PlantParameters, table: tuple[np.ndarray, np.ndarray],
+                    t: float) -> tuple[PlantParameters, float]:
+    """Parameters of a machine on ``path`` at time ``t``, s, and its speed drop at 2 V then (fraction).
+
+    ``table`` is :func:`~hydrowatch.plant.faults.speed_drop_table` of the path's fault up to ``path.top_drop`` on
+    the machine's ``healthy`` parameters (drop → severity on that unit)."""
+    drop = float(path.drop_at(t))
+    return (fault_parameters(healthy, path.fault, float(np.interp(drop, *table))) if drop > 0 else healthy), drop
+
+
+class Wear:
+    """Machines of one :class:`~hydrowatch.plant.PlantSimulator` whose fault follows a path: their parameters at a
+    time, moved on a grid of ``update_seconds`` (what :class:`Fleet` does for its specs; the plant service's
+    ``--degrade``).
+
+    Parameters
+    ----------
+    paths : mapping of int to DegradationPath
+        Simulator row → its path.
+    healthy : mapping of int to PlantParameters
+        Simulator row → its parameters as new (the drops are relative to its own speed).
+    update_seconds : float, default 1.0
+        How often the parameters move, s of simulated time.
+    """
+
+    def __init__(self, paths: Mapping[int, DegradationPath], healthy: Mapping[int, PlantParameters],
+                 update_seconds: float = 1.0) -> None:
+        if not (np.isfinite(update_seconds) and update_seconds > 0):
+            raise ParameterError(f"update_seconds must be positive. Got {update_seconds!r}.")
+        self.paths, self.healthy, self.update_seconds = dict(paths), dict(healthy), float(update_seconds)
+        self._tables = {i: speed_drop_table(p.fault, p.top_drop, self.healthy[i]) for i, p in self.paths.items()}
+        self._next_t = -np.inf
+
+    def due(self, t: float) -> list[tuple[int, PlantParameters]]:
+        """The rows whose parameters move at time ``t``, s, with their parameters then (none between grid
+        points)."""
+        half_sample = 0.5 / SAMPLE_RATE_HZ  # a grid point reached by summed sample times is reached
+        if t < self._next_t - half_sample:
+            return []
+        self._next_t = (np.floor((t + half_sample) / self.update_seconds) + 1.0) * self.update_seconds
+        return [(i, worn_parameters(p, self.healthy[i], self._tables[i], t)[0]) for i, p in self.paths.items()]
+
+    def states(self, t: float, labels: Sequence[str]) -> list[str]:
+        """``labels`` with each wearing row's label at time ``t``, s (:func:`path_state`)."""
+        out = list(labels)
+        for i, p in self.paths.items():
+            out[i] = path_state(p, float(p.drop_at(t)))
+        return out
 
 
 @dataclass(frozen=True)
@@ -248,10 +303,7 @@ class Fleet:
         """Current health label of each machine (fixed state, or the nearest level of its path)."""
         labels = []
         for spec, drop in zip(self.specs, self._drops):
-            if spec.path is None:
-                labels.append(spec.state)
-            else:
-                labels.append(state_name(spec.path.fault, level_for_speed_drop(drop)) if drop > 0 else "healthy")
+            labels.append(spec.state if spec.path is None else path_state(spec.path, float(drop)))
         return labels
 
     def _parameters_at(self, index: int, t: float) -> PlantParameters:
@@ -260,10 +312,8 @@ class Fleet:
             _, level = parse_state(spec.state)
             self._drops[index] = 0.0 if level is None else LEVELS[level]
             return state_parameters(spec.state, healthy)
-        drop = float(spec.path.drop_at(t))
-        self._drops[index] = drop
-        severity = float(np.interp(drop, *table))
-        return fault_parameters(healthy, spec.path.fault, severity) if drop > 0 else healthy
+        parameters, self._drops[index] = worn_parameters(spec.path, healthy, table, t)
+        return parameters
 
     def settle(self, voltage: float = 0.0, seconds: float = 3.0) -> None:
         """Bring every machine to rest at a constant command without advancing time (see the simulator)."""

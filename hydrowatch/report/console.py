@@ -14,7 +14,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
-from hydrowatch.report.fleet_table import HEALTHY
+from hydrowatch.report.fleet_table import HEALTHY, wear_text
 
 
 def json_output(asked: bool, stream: TextIO | None = None) -> bool:
@@ -123,6 +123,9 @@ def demo_text(summary: Mapping[str, Any]) -> str:
     healthy = [m for m, s in sorted(fleet.items()) if s == HEALTHY]
     if healthy:
         lines.append(f"  healthy: {', '.join(healthy)}")
+    for machine, parts in (summary.get("wear") or {}).items():  # soonest alert first
+        soon = [wear_text(f, p) for f, p in parts.items() if p.get("alert_in_s") is not None]
+        lines.append(f"  {machine:<8} wear: {'; '.join(soon)}")
     lines.append(f"models (accuracy on held-out commands; champion: {summary['champion']}):")
     for kind, checks in summary["accuracy"].items():
         lines.append(f"  {kind:<8} {_join(checks, _pct)}" if checks else f"  {kind}")

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from hydrowatch.report.fleet_table import wear_cells
 from hydrowatch.report.html import Section, write_html
 from hydrowatch.report.plots import confusion_png, timeline_png
 from hydrowatch.report.training import training_section
@@ -42,7 +43,15 @@ def fleet_section(live: Mapping[str, Any], states: list[str]) -> Section:
     section.text(
         "The simulated fleet: m00 healthy, m01 load warning throughout, m02-m04 develop a load fault, a pump leak "
         "and a motor leak from t = 20 s to alert at t = 80 s, m05 a valve leak the model was never trained on "
-        "(it should read 'unknown').")
+        "(it should read 'unknown'), m06 a motor leak wearing slowly from new (warning from about 100 s).")
+    wear = live.get("wear") or {}
+    if wear:
+        section.text("How worn each part is and when it will reach the alert (the scorer's index and forecast, "
+                     "most urgent first: the soonest alert, then the highest index). m06's motor leak wears from new "
+                     "to index 1.3 over 15 minutes: 0.48 after the default 330 s, the alert at 692 s.")
+        section.table(["machine", "part", "index [95 %]", "trend / h", "time to alert [95 %]"],
+                      [[m, *wear_cells(f, p)] for m, parts in wear.items() for f, p in parts.items()
+                       if p.get("alert_in_s") is not None or (p.get("value") or 0.0) >= 0.15])
     section.image(timeline_png(live["timelines"], states), "verdict timelines")
     truth = {m: [(t, t + 0.1, s) for t, s in points] for m, points in live["truth"].items()}
     section.text("True labels of the simulated machines (nearest named level of the current fault):")

@@ -123,3 +123,143 @@ def verdict_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
         row["degradation"] = None if parts is None else {
             d["fault"]: {"value": d["index"], "ci95": [d["low"], d["high"]]} for d in parts}
     return rows
+
+
+def forecast_parts(batch: pa.RecordBatch) -> tuple[float | None, dict[str, dict[str, Any]]]:
+    """A ``forecast`` message as ``score --json``'s summary ``forecast`` writes it: the start of the window it counts
+    from, s (None for an empty message), and fault → ``{"alert_in_s", "ci95": [lo, hi], "rate_per_h", "level",
+    "model", "points", "reset_at_s"}`` (+ ``reason`` when there is no forecast)."""
+    rows = batch.to_pylist()
+    parts = {}
+    for r in rows:
+        part = {"alert_in_s": r["alert_in_s"], "ci95": [r.get("low_s"), r.get("high_s")],
+                "rate_per_h": r.get("rate_per_h"), "level": r.get("level"), "model": r["model"], "points": r["points"],
+                "reset_at_s": r.get("reset_at")}
+        if r.get("reason") is not None:
+            part["reason"] = r["reason"]
+        parts[r["fault"]] = part
+    return (float(rows[0]["window_start"]) if rows else None), parts
+
+
+FORECAST_KEYS = ("rate_per_h", "alert_in_s", "reason")
+"""What a part's entry in :func:`wear_parts` takes from its forecast (its ``ci95`` becomes ``alert_ci95``)."""
+
+
+def wear_parts(degradation: Mapping[str, Mapping[str, Any]] | None,
+               forecast: Mapping[str, Mapping[str, Any]] | None) -> dict[str, dict[str, Any]] | None:
+    """Each part's wear as an operator reads it, most urgent first: the latest window's index (``value``, ``ci95``,
+    from ``health_verdict`` v2) with the machine's forecast (``rate_per_h`` [index/h], ``alert_in_s`` [s],
+    ``alert_ci95``, ``reason`` when there is no forecast, from ``…/forecast``); None when there is neither.
+
+    Order: parts with a forecast of the alert, soonest first (0: already beyond it); then the others by index,
+    highest first (a part at 0.9 that is too flat to forecast needs a look before one at 0.1).
+    """
+    if not degradation and not forecast:
+        return None
+    parts: dict[str, dict[str, Any]] = {}
+    for fault, d in (degradation or {}).items():
+        parts[fault] = dict(d)
+    for fault, f in (forecast or {}).items():
+        part = parts.setdefault(fault, {"value": f.get("level"), "ci95": None})
+        part.update({k: f.get(k) for k in FORECAST_KEYS if f.get(k) is not None})
+        if f.get("alert_in_s") is not None:
+            part["alert_ci95"] = f.get("ci95")
+
+    def order(item: tuple[str, dict[str, Any]]) -> tuple[float, float, str]:
+        fault, p = item
+        alert = p.get("alert_in_s")
+        value = p.get("value")
+        return (float(alert) if alert is not None else float("inf"),
+                -float(value) if value is not None else 0.0, fault)
+
+    return dict(sorted(parts.items(), key=order))
+
+
+class FleetWear:
+    """Each machine's wear from the bus, for a table or a report (river style): the latest verdict's ``degradation``
+    (:meth:`add_verdict`) and the latest ``forecast`` message (:meth:`add_forecast`), read together by
+    :meth:`by_machine` (:func:`wear_parts`: most urgent part first)."""
+
+    def __init__(self) -> None:
+        self._index: dict[str, dict[str, Any]] = {}
+        self._forecast: dict[str, dict[str, Any]] = {}
+
+    def add_verdict(self, machine: str, verdict: Mapping[str, Any]) -> None:
+        """Take a ``health_verdict`` row (:func:`verdict_rows`); one without a ``degradation`` changes nothing."""
+        if verdict.get("degradation") is not None:
+            self._index[machine] = dict(verdict["degradation"])
+
+    def add_forecast(self, machine: str, parts: Mapping[str, Mapping[str, Any]]) -> None:
+        """Take a ``forecast`` message's parts (:func:`forecast_parts`)."""
+        self._forecast[machine] = {f: dict(p) for f, p in parts.items()}
+
+    def by_machine(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """Machine → its parts (:func:`wear_parts`), machines sorted by their soonest alert, then by id."""
+        found = {m: wear_parts(self._index.get(m), self._forecast.get(m)) for m in {*self._index, *self._forecast}}
+        parts = {m: p for m, p in found.items() if p}
+
+        def soonest(item: tuple[str, dict[str, dict[str, Any]]]) -> tuple[float, str]:
+            alerts = [p["alert_in_s"] for p in item[1].values() if p.get("alert_in_s") is not None]
+            return (min(alerts) if alerts else float("inf"), item[0])
+
+        return dict(sorted(parts.items(), key=soonest))
+
+
+def duration_text(seconds: float) -> str:
+    """Operating time for people: ``now``, seconds, minutes below two hours, else hours (as the web page writes
+    it)."""
+    if seconds <= 0:
+        return "now"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def wear_text(fault: str, part: Mapping[str, Any]) -> str:
+    """One part's wear in a line: ``motor_leak 0.48 [0.41–0.55] ↑1.62/h alert in 6 min (95 %: 4–9 min)``, or the
+    reason there is no forecast (an entry of :func:`wear_parts`)."""
+    value, ci = part.get("value"), part.get("ci95")
+    text = f"{fault} {'–' if value is None else f'{value:.2f}'}"
+    if ci and None not in ci:
+        text += f" [{ci[0]:.2f}–{ci[1]:.2f}]"
+    if part.get("rate_per_h") is not None:
+        rate = part["rate_per_h"]
+        text += f" {'↑' if rate >= 0 else '↓'}{abs(rate):.2f}/h"
+    alert = part.get("alert_in_s")
+    if alert is not None and alert <= 0:
+        text += " at alert"
+    elif alert is not None:
+        lo, hi = part.get("alert_ci95") or (None, None)
+        text += (f" alert in {duration_text(alert)} (95 %: {'0' if lo is None else duration_text(lo)}–"
+                 f"{'open' if hi is None else duration_text(hi)})")
+    elif part.get("reason"):
+        text += f" (no forecast: {str(part['reason']).split(':')[0]})"
+    return text
+
+
+def wear_cells(fault: str, part: Mapping[str, Any]) -> list[str]:
+    """A part's wear as table cells: part, index with its interval, trend per hour, time to alert with its interval
+    (or why there is none); the words of :func:`wear_text`."""
+    whole = wear_text(fault, {k: part.get(k) for k in ("value", "ci95")})
+    rate = part.get("rate_per_h")
+    alert = wear_text("", {k: part.get(k) for k in ("alert_in_s", "alert_ci95", "reason")}).strip(" –")
+    return [fault, whole[len(fault) + 1:], "" if rate is None else f"{rate:+.2f}", alert]
+
+
+WORN = 0.15
+"""Index from which a part without a forecast is listed among a machine's wear (a look-alike's noise stays below,
+docs/degradation.md); parts with a forecast of the alert always are."""
+
+
+def render_wear(by_machine: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str:
+    """Lines of each machine's worn parts (:meth:`FleetWear.by_machine`'s order, parts most urgent first): parts with
+    a forecast of the alert or an index ≥ :data:`WORN`; ``""`` when no machine has any."""
+    lines = []
+    for machine, parts in by_machine.items():
+        shown = [wear_text(f, p) for f, p in parts.items()
+                 if p.get("alert_in_s") is not None or (p.get("value") or 0.0) >= WORN]
+        if shown:
+            lines.append(f"{machine:<22} {'; '.join(shown)}")
+    return "\n".join(["wear (most urgent first)", *lines]) if lines else ""

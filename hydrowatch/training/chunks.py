@@ -149,8 +149,9 @@ class WindowVerdict:
         The window's ``kl`` scores (None for a window cut short by a break): relative entropies
         per sensor, nats (entropy method), or relation scores per relation (parity method).
     degradation : dict or None
-        Degradation index per part, ``{fault: {"value", "ci95": [lo, hi]}}`` (parity method, valid
-        windows; :meth:`hydrowatch.condition.degradation.Degradation.window`), None otherwise.
+        Degradation index per part, ``{fault: {"value", "ci95": [lo, hi], "measured"}}`` (parity method, valid
+        windows; :meth:`hydrowatch.condition.degradation.Degradation.window`; ``measured`` False where a valve-side
+        look-alike was blamed), None otherwise.
     """
 
     machine: str

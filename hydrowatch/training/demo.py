@@ -8,7 +8,7 @@
    with the best duty-cycle accuracy (ties: parity, then NARX);
 4. a live fleet on the bus: machines with faults appearing (degradation paths) published by an
    in-process fleet, a recorder and a scorer as separate processes, the live table fed by the
-   health topic;
+   health topic, each machine's wear (index, trend, time to alert) by the health and forecast topics;
 5. an HTML report with the plots, confusion matrices and per-machine timelines.
 """
 
@@ -30,10 +30,10 @@ from hydrowatch.io import write_recording
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.excitation import FilteredNoiseCommand
-from hydrowatch.plant.faults import STUDY_STATES
+from hydrowatch.plant.faults import LEVELS, STUDY_STATES
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate_states
 from hydrowatch.recording import SAMPLE_RATE_HZ
-from hydrowatch.report.fleet_table import FleetTable, verdict_rows
+from hydrowatch.report.fleet_table import FleetTable, FleetWear, forecast_parts, verdict_rows
 from hydrowatch.results import TrainingResult
 from hydrowatch.training.options import TrainingSettings
 from hydrowatch.training.pipeline import train_and_track
@@ -42,6 +42,8 @@ from hydrowatch.web import web_port
 
 _log = get_logger(__name__)
 FLEET = "demo"
+WEAR_S = 900.0
+"""Seconds the demo's wearing machine (m06) takes from new to index 1.3."""
 MACHINES = (
     MachineSpec("m00"),
     MachineSpec("m01", state="load_warning"),
@@ -49,8 +51,14 @@ MACHINES = (
     MachineSpec("m03", path=DegradationPath("pump_leak", 20.0, 60.0)),
     MachineSpec("m04", path=DegradationPath("motor_leak", 20.0, 60.0)),
     MachineSpec("m05", path=DegradationPath("valve_leak", 20.0, 60.0)),
+    MachineSpec("m06", path=DegradationPath("motor_leak", 0.0, WEAR_S, final_drop=1.3 * LEVELS["alert"])),
 )
-"""The live fleet: healthy, a fixed fault, three study faults appearing, one fault never trained (valve leak)."""
+"""The live fleet: healthy, a fixed fault, three study faults appearing, one fault never trained (valve leak), and
+one motor leak wearing slowly from new (index 0 → 1.3 over 15 min: 0.48 after the default 330 s, the alert at
+692 s), whose forecast the scorer publishes."""
+FORECAST_EVERY = 3
+"""Windows between two forecasts of a machine in the demo (15 s; the scorer's default is 60: the demo is short, and
+a forecast needs 300 s of history, so every machine's last one must come in the last windows of the 330 s)."""
 
 
 @dataclass
@@ -62,9 +70,10 @@ class DemoSettings:
     tracking: str | None = None
     seed: int = 0
     accuracy_seconds: float = 60.0
-    live_seconds: float = 180.0
-    """Simulated seconds of the live fleet: faults appear from 20 s to 60 s, and the scorer pools 12 windows."""
-    speed: float = 5.0
+    live_seconds: float = 330.0
+    """Simulated seconds of the live fleet: faults appear from 20 s to 60 s, and the scorer pools 12 windows; m06's
+    forecast needs 300 s of its history."""
+    speed: float = 10.0
     web_port: int | None = None
     """Port of the live fleet page (None: 8050 when free, else any free port)."""
 
@@ -104,19 +113,21 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
     processes = [
         _spawn("services.recorder", ["--out", str(s.out / "recordings"), "--fleet", FLEET, *bus],
                logs / "recorder.log"),
-        _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, *bus], logs / "scorer.log"),
+        _spawn("services.scorer", ["--model", str(bundle_dir), "--fleet", FLEET, "--forecast-every",
+                                   str(FORECAST_EVERY), *bus], logs / "scorer.log"),
         _spawn("services.web", ["--fleet", FLEET, "--port", str(http_port), *bus], logs / "web.log"),
     ]
     print(f"live fleet page (while the live fleet runs): {web}", file=sys.stderr, flush=True)
     fleet = Fleet(list(MACHINES), fleet=FLEET, seed=s.seed + 1)
     command = FilteredNoiseCommand(fleet.n_machines, seed=s.seed + 2)
     table = FleetTable()
+    wear = FleetWear()
     timelines: dict[str, list[tuple[float, float, str]]] = {m: [] for m in fleet.machine_ids}
     truth: dict[str, list[tuple[float, str]]] = {m: [] for m in fleet.machine_ids}
     n = int(0.1 * SAMPLE_RATE_HZ)
     try:
         with open_session(BusSettings(port=port)) as session, Publisher(session) as publisher, \
-                Subscriber(session, key_expr(FLEET, "*", "health")) as health:
+                Subscriber(session, [key_expr(FLEET, "*", "health"), key_expr(FLEET, "*", "forecast")]) as health:
             deadline = time.monotonic() + 120.0
             while not any(k.split("/")[2].startswith("scorer.") for k in alive(session)):
                 if time.monotonic() > deadline or any(p.poll() is not None for p in processes):
@@ -132,7 +143,7 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
                     channels["state"] = np.full(n, labels[i], dtype=object)
                     publisher.put(key(FLEET, machine, "sensors"), sensor_chunk_from_arrays(out["t"][i], channels))
                     truth[machine].append((float(out["t"][i][0]), labels[i]))
-                _receive(health, table, timelines)
+                _receive(health, table, timelines, wear)
                 ahead = wall0 + fleet.time / s.speed - time.monotonic()
                 if ahead > 0:
                     time.sleep(ahead)
@@ -142,15 +153,21 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
             _stop(processes[1:])  # the scorer drains and publishes its last verdicts
             quiet = time.monotonic() + 2.0
             while time.monotonic() < quiet:
-                _receive(health, table, timelines, wait=0.2)
+                _receive(health, table, timelines, wear, wait=0.2)
     finally:
         _stop(processes)
-    return {"table": table, "timelines": timelines, "truth": truth, "web": web}
+    return {"table": table, "timelines": timelines, "truth": truth, "web": web, "wear": wear.by_machine()}
 
 
-def _receive(health: Subscriber, table: FleetTable, timelines: dict[str, list], wait: float = 0.0) -> None:
+def _receive(health: Subscriber, table: FleetTable, timelines: dict[str, list], wear: FleetWear,
+             wait: float = 0.0) -> None:
     while (message := health.recv(timeout=wait)) is not None:
+        if message.key.topic == "forecast":
+            wear.add_forecast(message.key.machine, forecast_parts(message.batch)[1])
+            wait = 0.0
+            continue
         for row in verdict_rows(message.batch):
+            wear.add_verdict(message.key.machine, row)
             table.update(message.key.machine, row)
             timelines.setdefault(message.key.machine, []).append(
                 (row["window_start"], row["window_end"], row["state"]))
@@ -183,6 +200,7 @@ def run_demo(s: DemoSettings, *, show: bool = False) -> dict[str, Any]:
         "accuracy": {k: summaries[k]["checks"] for k in accuracy},
         "fleet": {m: r.state for m, r in live["table"].rows().items()},
         "attention": live["table"].attention(),
+        "wear": {m: parts for m, parts in live["wear"].items() if any("alert_in_s" in p for p in parts.values())},
         "web": live["web"],
         "seconds": round(time.monotonic() - t0, 1),
     }

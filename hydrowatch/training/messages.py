@@ -1,4 +1,4 @@
-"""Bus messages of the scorer: ``kl_window`` and ``health_verdict`` record batches (schemas/)."""
+"""Bus messages of the scorer: ``kl_window``, ``health_verdict`` and ``forecast`` record batches (schemas/)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 import pyarrow as pa
 
-from hydrowatch.schemas import HEALTH_VERDICT, KL_WINDOW, wire_schema
+from hydrowatch.schemas import FORECAST, HEALTH_VERDICT, KL_WINDOW, wire_schema
+from hydrowatch.training.forecasts import MachineForecast
 from hydrowatch.training.online import WindowVerdict
 from hydrowatch.verdict import INVALID, UNKNOWN
 
@@ -50,3 +51,20 @@ def kl_batch(
         "relative_entropy": np.asarray(d, dtype=np.float64).reshape(-1).tolist(), "model_version": [model_version] * n,
     }
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(KL_WINDOW))
+
+
+def forecast_batch(item: MachineForecast, model_version: str) -> pa.RecordBatch:
+    """The ``forecast`` rows of one machine, one per part (:meth:`Forecast.to_dict
+    <hydrowatch.condition.forecast.Forecast.to_dict>`'s values; non-finite numbers as null)."""
+    parts = [(fault, f.to_dict()) for fault, f in item.parts.items()]
+    n = len(parts)
+    row = {
+        "window_start": [item.start_s] * n, "fault": [fault for fault, _ in parts],
+        "alert_in_s": [d["alert_in_s"] for _, d in parts],
+        "low_s": [d["ci95"][0] for _, d in parts], "high_s": [d["ci95"][1] for _, d in parts],  # type: ignore[index]
+        "rate_per_h": [d["rate_per_h"] for _, d in parts], "level": [d["level"] for _, d in parts],
+        "model": [d["model"] for _, d in parts], "points": [d["points"] for _, d in parts],
+        "reset_at": [d["reset_at_s"] for _, d in parts], "reason": [d.get("reason") for _, d in parts],
+        "history_windows": [item.history_windows] * n, "model_version": [model_version] * n,
+    }
+    return pa.RecordBatch.from_pydict(row, schema=wire_schema(FORECAST))

@@ -14,6 +14,8 @@ from hydrowatch.health.plan import DataPlan
 from hydrowatch.methods import method_class, method_names
 
 DEFAULT_EXPERIMENT = "hydrowatch"
+DEFAULT_SCORING_EXPERIMENT = "hydrowatch-scoring"
+"""Experiment of ``score --log-run`` runs (apart from the training runs, whose metrics differ)."""
 DEFAULT_MODEL_NAME = "hydrowatch"
 DEFAULT_ALIAS = "champion"
 DEFAULT_NARX: dict[str, Any] = {"input_delays": 4, "output_delays": 4, "hidden": 8, "max_iter": 40}

@@ -139,3 +139,35 @@ def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[s
                 verdict.append(w["state"])
     accuracy = float(np.mean(np.asarray(truth) == np.asarray(verdict))) if truth else None
     return accuracy, truth, verdict
+
+
+def scoring_metrics(result: dict[str, Any], prefix: str = "") -> tuple[dict[str, float], list[tuple[str, float, int]]]:
+    """What an MLflow run of ``score`` logs for one scored recording (:func:`score_recording`'s object).
+
+    Returns
+    -------
+    summary : dict of str to float
+        ``windows``, ``accuracy`` (when labelled), ``count.<state>``, and per fault ``forecast.<fault>.alert_in_s``
+        [s] (when there is a forecast), ``.rate_per_h`` [1/h], ``.level`` [1] (when fitted).
+    steps : list of (key, value, step)
+        ``degradation.<fault>`` [1], ``degradation.<fault>.low`` and ``.high`` per window that has an index, step =
+        the window's position in the recording (MLflow draws each as a curve over the windows).
+
+    Every key is preceded by ``prefix`` (several files in one run).
+    """
+    s = result["summary"]
+    summary: dict[str, float] = {f"{prefix}windows": float(s["windows"])}
+    if s.get("accuracy") is not None:
+        summary[f"{prefix}accuracy"] = float(s["accuracy"])
+    summary.update({f"{prefix}count.{state}": float(n) for state, n in s["counts"].items()})
+    for fault, f in (s.get("forecast") or {}).items():
+        for name in ("alert_in_s", "rate_per_h", "level"):
+            if f.get(name) is not None:
+                summary[f"{prefix}forecast.{fault}.{name}"] = float(f[name])
+    steps = []
+    for i, w in enumerate(result["windows"]):
+        for fault, d in (w.get("degradation") or {}).items():
+            steps += [(f"{prefix}degradation.{fault}", float(d["value"]), i),
+                      (f"{prefix}degradation.{fault}.low", float(d["ci95"][0]), i),
+                      (f"{prefix}degradation.{fault}.high", float(d["ci95"][1]), i)]
+    return summary, steps

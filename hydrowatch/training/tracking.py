@@ -20,7 +20,12 @@ from typing import Any
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.log import event, get_logger
-from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME
+from hydrowatch.training.options import (
+    DEFAULT_ALIAS,
+    DEFAULT_EXPERIMENT,
+    DEFAULT_MODEL_NAME,
+    DEFAULT_SCORING_EXPERIMENT,
+)
 
 _log = get_logger(__name__)
 
@@ -140,6 +145,37 @@ def log_training(
         out["model_uri"] = f"models:/{model_name}@{alias}" if alias else f"models:/{model_name}/{version.version}"
     event(_log, "training run logged", run_id=run_id, model=out["model_uri"], uri=uri)
     return out
+
+
+METRICS_PER_BATCH = 1000
+"""Most metrics MLflow takes in one ``log_batch`` call."""
+
+
+def log_scoring(*, params: dict[str, Any], metrics: dict[str, float], steps: list[tuple[str, float, int]],
+                tracking: str | None = None, experiment: str = DEFAULT_SCORING_EXPERIMENT,
+                run_name: str | None = None) -> dict[str, Any]:
+    """Log one ``score`` run: ``params`` (model, its version, data, smoothing), ``metrics`` (one value each) and
+    ``steps`` (key, value, step: a curve per key, the degradation index over the windows); returns ``run_id``,
+    ``tracking_uri`` and ``experiment``. Non-finite values are left out."""
+    from mlflow.entities import Metric, Param
+
+    uri = tracking_uri(tracking)
+    client = _client(uri)
+    experiment_id = _experiment_id(client, experiment, uri)
+    run_id = client.create_run(experiment_id, run_name=run_name, tags={"kind": "scoring"}).info.run_id
+    now = int(time.time() * 1000)
+    logged = [Metric(k, v, now, 0) for k, v in _finite(metrics).items()]
+    logged += [Metric(k, float(v), now, int(step)) for k, v, step in steps if math.isfinite(float(v))]
+    try:
+        client.log_batch(run_id, params=[Param(k, str(v)[:500]) for k, v in params.items()])
+        for lo in range(0, len(logged), METRICS_PER_BATCH):
+            client.log_batch(run_id, metrics=logged[lo:lo + METRICS_PER_BATCH])
+    except BaseException:
+        client.set_terminated(run_id, "FAILED")
+        raise
+    client.set_terminated(run_id, "FINISHED")
+    event(_log, "scoring run logged", run_id=run_id, metrics=len(logged), uri=uri)
+    return {"run_id": run_id, "tracking_uri": uri, "experiment": experiment}
 
 
 def set_alias(model_name: str, alias: str, version: str, tracking: str | None = None) -> None:

@@ -5,7 +5,9 @@ return nothing; reading changes nothing). The verdict rows themselves, the "sinc
 urgency order are :class:`hydrowatch.report.fleet_table.FleetTable`'s (the terminal ``watch`` and the
 demo report use the same); this module adds what a page needs on top: a change counter so that a page
 gets only what changed since its last update, each machine's timeline of verdicts and probabilities,
-and the evidence (relative entropies or parity relation scores) of its last windows.
+the evidence (relative entropies or parity relation scores) of its last windows, and each part's wear: its
+index from the latest verdict with the trend and time to alert of the machine's latest forecast, most urgent
+first (:func:`~hydrowatch.report.fleet_table.wear_parts`).
 
 A machine's id on the page is ``<fleet>/<machine>``.
 """
@@ -22,7 +24,7 @@ import numpy as np
 
 from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
-from hydrowatch.report.fleet_table import HEALTHY, LEVELS, FleetTable, MachineRow, urgency
+from hydrowatch.report.fleet_table import HEALTHY, LEVELS, FleetTable, MachineRow, urgency, wear_parts
 
 UNITS = PLANT.units
 """Unit of each channel the plant (and the study's rig) publishes."""
@@ -94,6 +96,7 @@ class _Machine:
     published_ms: float | None = None
     model_version: str | None = None
     degradation: dict[str, Any] | None = None
+    forecast: dict[str, Any] | None = None
     sensor_chunks: int = 0
 
 
@@ -180,6 +183,16 @@ class FleetLive:
             self.seq += 1
             self._changed[ident] = self.seq
 
+    def add_forecast(self, fleet: str, machine: str, parts: Mapping[str, Mapping[str, Any]]) -> None:
+        """Take one ``forecast`` message, as :func:`~hydrowatch.report.fleet_table.forecast_parts` reads it (fault →
+        ``{"alert_in_s", "ci95", "rate_per_h", …}``): the machine's parts then show their trend and time to alert
+        (:func:`~hydrowatch.report.fleet_table.wear_parts`)."""
+        ident, m = self._machine(fleet, machine)
+        m.forecast = {f: dict(p) for f, p in parts.items()}
+        if ident in self._table.latest():
+            self.seq += 1
+            self._changed[ident] = self.seq
+
     def add_sensors(self, fleet: str, machine: str, t: np.ndarray, channels: Mapping[str, np.ndarray]) -> None:
         """Take one ``sensor_chunk`` (sample times ``t`` s, shape (n,), and channel arrays of the same shape; a
         non-numeric column such as ``state`` is left out). Keeps the machine's last ``sensor_seconds``; a chunk
@@ -226,7 +239,7 @@ class FleetLive:
         return {"id": ident, "fleet": m.fleet, "machine": m.machine, "state": r.state, "level": LEVELS[rank],
                 "rank": rank, "p": r.probability, "since_s": r.since_s, "since_wall": r.since_wall,
                 "last_s": r.last_s, "windows": r.windows, "why": r.why(), "published_ms": m.published_ms,
-                "degradation": m.degradation}
+                "degradation": wear_parts(m.degradation, m.forecast)}
 
     def rows(self) -> list[dict[str, Any]]:
         """Every machine's row, most urgent first (:meth:`FleetTable.by_urgency`); the same list until the next

@@ -5,7 +5,9 @@ machines batched) under its own filtered-noise command; every ``--chunk`` second
 time one ``sensor_chunk`` per machine goes out, in real time (``--speed 1``), accelerated
 (``--speed 10``) or as fast as possible (``--speed inf``). Machines get the health states of
 ``--states`` in turn, each with a severity drawn inside its level's band. ``--shard i/n``
-simulates only the machines of that shard, so a large fleet spreads over processes.
+simulates only the machines of that shard, so a large fleet spreads over processes. ``--degrade
+[MACHINE=]FAULT:FROM:TO:SECONDS[:linear|exp]`` makes a machine wear along a path (as ``simulate --degrade``;
+:class:`hydrowatch.plant.fleet.Wear`), its label following the level it has reached.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ from hydrowatch.log import event, get_logger
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import FilteredNoiseCommand, parse_volts
 from hydrowatch.plant.faults import parse_state, random_state_parameters
+from hydrowatch.plant.fleet import DegradationPath, Wear
+from hydrowatch.plant.paths import FORM, parse_degradation
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from services.plant.encoder import FleetEncoder
 from services.plant.stepper import SimulationThread
@@ -75,6 +79,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--drop-every", type=int, default=0, metavar="N",
                         help="fault injection: leave every N-th message off the bus (it stays in the history), "
                              "to exercise recorders' recovery (default 0: none)")
+    parser.add_argument("--degrade", action="append", default=[], metavar=f"[MACHINE=]{FORM}",
+                        help="a machine wearing from index FROM to TO (0 new, 0.5 warning, 1 alert) over SECONDS of "
+                             "simulated time from the start, e.g. m003=load:0:1.3:3600:exp; repeatable; without "
+                             "MACHINE the paths go to m000, m001, … in order; the machine's --states entry is "
+                             "replaced by the path")
     parser.add_argument("--no-noise", action="store_true", help="switch sensor noise off")
     parser.add_argument("--no-label", action="store_true", help="leave the per-sample 'state' column out")
     add_bus_arguments(parser)
@@ -93,6 +102,35 @@ def _check(args: argparse.Namespace) -> int:
     return n
 
 
+def degradation_paths(specs: Sequence[str], machines: Sequence[str]) -> dict[str, DegradationPath]:
+    """Machine id → path of ``--degrade [MACHINE=]FAULT:FROM:TO:SECONDS[:shape]`` texts (those without MACHINE go to
+    the first machines not named, in order).
+
+    Raises
+    ------
+    ParameterError
+        A machine that is not in the fleet, one given two paths, more paths than machines, or a bad path.
+    """
+    named: dict[str, DegradationPath] = {}
+    unnamed = []
+    for spec in specs:
+        machine, _, path = spec.rpartition("=")
+        if machine and machine not in machines:
+            raise ParameterError(f"--degrade MACHINE must be one of the fleet's machines ({machines[0]}…"
+                                 f"{machines[-1]}). Got {machine!r} in {spec!r}.")
+        if machine in named:
+            raise ParameterError(f"--degrade must give each machine one path. Got two for {machine!r}.")
+        if machine:
+            named[machine] = parse_degradation(path)
+        else:
+            unnamed.append(parse_degradation(path))
+    free = [m for m in machines if m not in named]
+    if len(unnamed) > len(free):
+        raise ParameterError(f"--degrade must give at most one path per machine. Got {len(specs)} paths for "
+                             f"{len(machines)} machines.")
+    return {**named, **dict(zip(free, unnamed))}
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Simulate and publish until ``--seconds`` of simulated time or ``stop``; returns 0."""
     n = _check(args)
@@ -104,9 +142,15 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     if not mine:
         event(log, "no machine in this shard", shard=str(args.shard))
         return 0
+    paths = degradation_paths(args.degrade, everyone)
     rng = np.random.default_rng(args.seed)
     labels = [states[i % len(states)] for i, _ in mine]
     parameters = [random_state_parameters(label, rng)[0] for label in labels]
+    worn = {j: paths[m] for j, (_, m) in enumerate(mine) if m in paths}
+    wear = Wear(worn, {j: random_state_parameters("healthy", rng)[0] for j in worn}) if worn else None
+    for j, p in wear.due(0.0) if wear is not None else ():
+        parameters[j] = p
+    labels = wear.states(0.0, labels) if wear is not None else labels
     sim = PlantSimulator(parameters, noise=not args.no_noise, seed=args.seed)
     # load the compiled kernel now: the first step would otherwise come ~1 s late and the plant
     # would catch up in one burst (a latency spike at start-up)
@@ -122,7 +166,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         publisher = Publisher(session, express=args.express)
         reporter = StatusReporter(session, args.fleet, NAME, lambda: {"messages_out": publisher.messages_out},
                                   machines=[m for _, m in mine] if args.machine_tokens else ())
-        steps = SimulationThread(sim, command, n, args.seconds, stop)
+        steps = SimulationThread(sim, command, n, args.seconds, stop, wear=wear)
         publish_cpu_s = 0.0
         try:
             reporter.start()
@@ -136,6 +180,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             for out, end_time in steps:
                 # encode the whole step first, then publish back to back (~1.4 µs per put): the
                 # publish times of a burst stay close together instead of spreading over the encoding
+                if wear is not None:  # a wearing machine's label follows the level its path has reached
+                    encoder.relabel(wear.states(float(out["t"][0, 0]), labels))
                 payloads = encoder.encode(out["t"], out)
                 if history is not None:
                     sent = time.time_ns()

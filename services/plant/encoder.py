@@ -51,6 +51,12 @@ class FleetEncoder:
         self._tails: list[bytes] = []
         self._n = 0
 
+    def relabel(self, labels: Sequence[str]) -> None:
+        """New health labels (a machine wearing along a path changes level); the next step is encoded the slow way
+        and learnt again. Nothing happens when the labels are the same."""
+        if self.labels is not None and list(labels) != self.labels:
+            self.labels, self._heads, self.fast = list(labels), [], False
+
     def encode(self, t: np.ndarray, values: dict[str, np.ndarray]) -> list[bytes]:
         """One payload per machine.
 

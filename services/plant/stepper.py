@@ -18,6 +18,7 @@ import numpy as np
 
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import FilteredNoiseCommand
+from hydrowatch.plant.fleet import Wear
 
 _POLL_S = 0.1
 """How often a blocked producer looks whether it was closed, s."""
@@ -40,11 +41,14 @@ class SimulationThread:
         Stops the simulation (steps already queued are still yielded).
     depth : int
         Steps simulated ahead at most.
+    wear : Wear, optional
+        Machines whose fault follows a path (``--degrade``): their parameters move before the steps it says.
     """
 
     def __init__(self, sim: PlantSimulator, command: FilteredNoiseCommand, n: int, seconds: float,
-                 stop: threading.Event, depth: int = 2) -> None:
+                 stop: threading.Event, depth: int = 2, wear: Wear | None = None) -> None:
         self.sim, self.command, self.n, self.seconds, self.stop = sim, command, n, seconds, stop
+        self.wear = wear
         self.error: BaseException | None = None
         self.cpu_s = 0.0
         """CPU time the simulation thread used, s (thread_time; set when it ends)."""
@@ -70,6 +74,8 @@ class SimulationThread:
         try:
             half_sample = 0.5 / self.sim.sample_rate
             while not self.stop.is_set() and self.sim.time + half_sample < self.seconds:
+                for row, parameters in self.wear.due(self.sim.time) if self.wear is not None else ():
+                    self.sim.set_parameters(row, parameters)
                 out = self.sim.step(self.command.next(self.n))
                 if not self._offer((out, self.sim.time)):
                     return

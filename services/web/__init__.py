@@ -1,4 +1,4 @@
-"""Web service: the live fleet page, fed by ``hydro/<fleet>/*/health`` and ``…/kl``.
+"""Web service: the live fleet page, fed by ``hydro/<fleet>/*/health``, ``…/kl`` and ``…/forecast``.
 
 Subscribes to the verdicts and the evidence (relative entropies or parity relation scores) of every
 machine of ``--fleet``, keeps them in a :class:`hydrowatch.web.live.FleetLive` and serves the fleet page
@@ -25,12 +25,12 @@ from hydrowatch.bus.session import settings_from_args
 from hydrowatch.errors import ParameterError
 from hydrowatch.io.sensor_chunk import arrays_from_sensor_chunk
 from hydrowatch.log import event, get_logger
-from hydrowatch.report.fleet_table import verdict_rows
+from hydrowatch.report.fleet_table import forecast_parts, verdict_rows
 from hydrowatch.web import DEFAULT_PORT
 from hydrowatch.web.live import FleetLive
 
 NAME = "web"
-HELP = "live fleet web page (health and evidence topics) on a local port, updated in place"
+HELP = "live fleet web page (health, evidence and forecast topics) on a local port, updated in place"
 log = get_logger("services.web")
 
 
@@ -46,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _take(live: FleetLive, messages: Sequence[Message]) -> None:
-    """Feed ``live`` with verdicts (``health``), evidence (``kl``) and followed machines' samples (``sensors``)."""
+    """Feed ``live`` with verdicts (``health``), evidence (``kl``), forecasts (``forecast``) and followed machines'
+    samples (``sensors``)."""
     for message in messages:
         k = message.key
         if k.topic == "sensors":
@@ -56,6 +57,8 @@ def _take(live: FleetLive, messages: Sequence[Message]) -> None:
             for row in verdict_rows(message.batch):
                 live.add_verdict(k.fleet, k.machine, row, received=message.receive_time_ns / 1e9,
                                  published_ms=message.publish_time_ns / 1e6 or None)
+        elif k.topic == "forecast":
+            live.add_forecast(k.fleet, k.machine, forecast_parts(message.batch)[1])
         else:
             live.add_evidence(k.fleet, k.machine, message.batch.to_pylist())
 
@@ -98,7 +101,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     live = FleetLive(history=args.history)
     condition = threading.Condition()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
-    topics = [key_expr(args.fleet, "*", "health"), key_expr(args.fleet, "*", "kl")]
+    topics = [key_expr(args.fleet, "*", topic) for topic in ("health", "kl", "forecast")]
     with open_session(settings_from_args(args)) as session, Subscriber(session, topics) as subscriber, \
             _SensorFeeds(session) as feeds, WebServer(live, condition, args.host, args.port) as server:
         reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {

@@ -11,14 +11,25 @@ function showConnection(source) {
   source.onerror = () => { live.textContent = "disconnected: retrying…"; live.classList.add("down"); };
 }
 
-// A degradation index per component (value, 95 % interval, trend, time to alert), when a verdict carries one.
+// Operating time until an alert, for people: "now", seconds, minutes below two hours, else hours.
+function duration(s) {
+  if (s <= 0) return "now";
+  if (s < 120) return `${Math.round(s)} s`;
+  if (s < 7200) return `${Math.round(s / 60)} min`;
+  return `${(s / 3600).toFixed(1)} h`;
+}
+
+// Each component's wear (index, 95 % interval, trend, time to alert), in the server's order: most urgent first.
 function degradationHtml(d) {
   if (!d) return "";
+  const num = (x) => x == null ? "–" : Number(x).toFixed(2);
   return Object.entries(d).map(([fault, v]) => {
-    const value = typeof v === "object" ? v.value : v;
-    const ci = v && v.ci95 ? ` [${v.ci95[0].toFixed(2)}–${v.ci95[1].toFixed(2)}]` : "";
+    const value = v !== null && typeof v === "object" ? v.value : v;
+    const ci = v && v.ci95 ? ` [${num(v.ci95[0])}–${num(v.ci95[1])}]` : "";
     const trend = v && v.rate_per_h != null ? ` ${v.rate_per_h >= 0 ? "↑" : "↓"}${Math.abs(v.rate_per_h).toFixed(2)}/h` : "";
-    const alert = v && v.alert_in_s != null ? ` alert in ${(v.alert_in_s / 3600).toFixed(1)} h` : "";
-    return `<span class="deg">${esc(fault)} ${Number(value).toFixed(2)}${ci}${trend}${alert}</span>`;
+    const soon = v && v.alert_in_s != null;
+    const alert = !soon ? "" : v.alert_in_s <= 0 ? " at alert" : ` alert in ${duration(v.alert_in_s)}`;
+    const title = v && v.reason ? ` title="${esc(v.reason)}"` : "";
+    return `<span class="deg${soon ? " soon" : ""}"${title}>${esc(fault)} ${num(value)}${ci}${trend}${alert}</span>`;
   }).join("");
 }

@@ -1,0 +1,92 @@
+"""One machine's degradation-index history online, and its forecast (river style): :class:`ForecastStream`.
+
+The scorer keeps one per machine. :meth:`ForecastStream.update` takes each window's index (as the parity judge
+gives it, :meth:`~hydrowatch.condition.degradation.DegradationStream.update`) and returns nothing;
+:meth:`ForecastStream.get` forecasts every part seen from the history it holds, with the one implementation
+:func:`~hydrowatch.condition.forecast.forecast_alert`, as ``score --json``'s summary does for a file
+(:func:`hydrowatch.training.scoring.degradation_forecast`): the same windows give the same forecast.
+
+**Bounded memory.** The history is a ring of the last ``capacity`` windows that had an index: their start times
+(float64) and each part's index (float32: the index travels rounded to 1e-4, float32 keeps that exactly enough,
+≤ 1e-6 at the index's scale of ≤ 10), NaN where the part's value was not its own estimate (a valve-side look-alike
+was blamed, :meth:`~hydrowatch.condition.degradation.Degradation.history`). With the default
+:data:`HISTORY_WINDOWS` (1440: two hours of 5 s windows) that is 1440 × (8 + 6 × 4) B = 46 kB per machine. A
+forecast rests on at most that history, so it reaches at most :data:`~hydrowatch.condition.forecast.HORIZON_FACTOR`
+× its span ahead (20 h for two hours); a part wearing over days needs a longer ``capacity``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.condition.forecast import Forecast, forecast_alert
+from hydrowatch.errors import ParameterError
+from hydrowatch.plant.faults import FAULTS
+
+HISTORY_WINDOWS = 1440
+"""Default windows of history kept per machine: two hours of 5 s windows (what the benchmark forecasts from)."""
+
+
+class ForecastStream:
+    """The last ``capacity`` windows of one machine's degradation index, and the forecast they give (module
+    docstring).
+
+    Parameters
+    ----------
+    capacity : int, default :data:`HISTORY_WINDOWS`
+        Windows with an index kept (older ones are dropped).
+    """
+
+    def __init__(self, capacity: int = HISTORY_WINDOWS) -> None:
+        if int(capacity) != capacity or capacity < 1:
+            raise ParameterError(f"capacity must be an integer >= 1 (windows of history). Got {capacity!r}; "
+                                 f"{HISTORY_WINDOWS} (two hours of 5 s windows) is the default.")
+        self.capacity = int(capacity)
+        self._t = np.empty(self.capacity)
+        self._index = np.empty((self.capacity, len(FAULTS)), dtype=np.float32)
+        self._next = 0
+        """Ring position of the next window."""
+        self._count = 0
+        """Windows held (≤ capacity)."""
+        self._seen: set[str] = set()
+        """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
+        with a finite value in the file)."""
+
+    def __len__(self) -> int:
+        return self._count
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the history's arrays."""
+        return int(self._t.nbytes + self._index.nbytes)
+
+    def update(self, start_s: float, degradation: Mapping[str, Mapping[str, Any]]) -> None:
+        """Add one window with an index: its start time, s, and ``{fault: {"value", "measured"}}``
+        (``measured`` absent reads True). Returns nothing."""
+        row = np.full(len(FAULTS), np.nan, dtype=np.float32)
+        for j, fault in enumerate(FAULTS):
+            entry = degradation.get(fault)
+            if entry is None or not np.isfinite(entry["value"]):
+                continue
+            self._seen.add(fault)
+            if entry.get("measured", True):
+                row[j] = entry["value"]
+        self._t[self._next] = start_s
+        self._index[self._next] = row
+        self._next = (self._next + 1) % self.capacity
+        self._count = min(self._count + 1, self.capacity)
+
+    def history(self) -> tuple[np.ndarray, np.ndarray]:
+        """The windows held in arrival order: start times (n,), s, and indices (n, len(FAULTS)), float64."""
+        order = (np.arange(self._count) + (self._next - self._count)) % self.capacity
+        return self._t[order], self._index[order].astype(np.float64)
+
+    def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
+        """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and
+        seed of ``score --json``). Changes nothing; ``{}`` before any window."""
+        t, index = self.history()
+        return {f: forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s)
+                for j, f in enumerate(FAULTS) if f in self._seen}
