@@ -270,7 +270,7 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
         base, k = first[len(states)], len(states)
         plain: list[Tally] = []
         for how, command in runs.items():
-            commissioned, refused, supply, whole = [], 0, 0, 0
+            commissioned, accepted, refused, supply, whole = [], [], 0, 0, 0
             for j, (unit, day) in enumerate(units[1:], start=1):
                 seed = 50_000 + 1000 * j + args.seed
                 healthy = simulate([unit], command(seed + 1), seed)[0]
@@ -286,11 +286,16 @@ def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParam
                     tally = Tally()
                     score_working(m, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
                     tallies_.append(tally)
+                if model is not base:
+                    accepted.append(commissioned[-1])
             if how == next(iter(runs)):
                 out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, "
                                                                         "not commissioned")
             out[f"{k} states, commissioned on {how}"] = summarise(
                 commissioned, f"{k} states, first unit's model, commissioned on 300 s of healthy {how}")
+            if refused and accepted:  # a refused unit keeps the fleet model and is the worst unit: show the rest too
+                out[f"{k} states, commissioned on {how}, the commissioned units"] = summarise(
+                    accepted, f"{k} states, commissioned on {how}, the {len(accepted)} units commissioned")
             out[f"{k} states, commissioned on {how}, refused"] = refused
             out[f"{k} states, commissioned on {how}, whole-recording fit"] = whole
             print(f"commissioning on {how}: refused on {refused} of {len(units) - 1} healthy units, supply "
