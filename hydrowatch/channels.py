@@ -162,6 +162,25 @@ class ChannelSet:
             lacking.append(f"one of {', '.join(self.sensors)}")
         return lacking
 
+    def select(self, names: str | Collection[str]) -> tuple[str, ...]:
+        """The channels ``names`` (a collection, or comma-separated text such as ``"voltage,speed"``) in this set's
+        column order, checked to be channels of the set and to make a recording of it (:meth:`missing`).
+
+        Raises
+        ------
+        ParameterError
+            Naming the unknown channels, or what the selection lacks.
+        """
+        wanted = [n.strip() for n in names.split(",") if n.strip()] if isinstance(names, str) else list(names)
+        unknown = [n for n in wanted if n not in self]
+        if unknown:
+            raise ParameterError(f"channels must be among {list(self.names)}. Got unknown {unknown}.")
+        lacking = self.missing(wanted)
+        if lacking:
+            raise ParameterError(f"channels must include every required channel and at least one sensor. Got "
+                                 f"{wanted}, without {lacking}.")
+        return tuple(n for n in self.names if n in wanted)
+
     @property
     def measured(self) -> tuple[str, ...]:
         """Names of every channel but the command: the plant's outputs, in kernel column order."""

@@ -37,7 +37,7 @@ from services.plant.stepper import SimulationThread
 NAME = "plant"
 HELP = "publish a simulated fleet on hydro/<fleet>/<machine>/sensors in real time or faster"
 CHANNELS = PLANT.names
-"""Channels of every published chunk: all the plant's, in ``sensor_chunk`` order."""
+"""Channels of every published chunk by default: all the plant's, in ``sensor_chunk`` order (``--channels``: fewer)."""
 log = get_logger("services.plant")
 
 
@@ -77,6 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "to exercise recorders' recovery (default 0: none)")
     parser.add_argument("--no-noise", action="store_true", help="switch sensor noise off")
     parser.add_argument("--no-label", action="store_true", help="leave the per-sample 'state' column out")
+    parser.add_argument("--channels", default=",".join(CHANNELS), metavar="C1,C2,...",
+                        help="channels to publish: the command and at least one sensor, e.g. voltage,speed,torque "
+                             "for machines without a flow meter (default: all of " + ",".join(CHANNELS) + ")")
     add_bus_arguments(parser)
 
 
@@ -96,6 +99,7 @@ def _check(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Simulate and publish until ``--seconds`` of simulated time or ``stop``; returns 0."""
     n = _check(args)
+    channels = PLANT.select(args.channels)  # a bad --channels fails before the bus is opened
     states = [s.strip() for s in args.states.split(",") if s.strip()]
     for state in states:
         parse_state(state)
@@ -113,7 +117,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     PlantSimulator(parameters[:1], noise=not args.no_noise, seed=args.seed).step(np.zeros(1))
     command = FilteredNoiseCommand(len(mine), args.volts, seed=args.seed + 1)
     keys = [key(args.fleet, m, "sensors") for _, m in mine]
-    encoder = FleetEncoder(CHANNELS, None if args.no_label else labels)
+    encoder = FleetEncoder(channels, None if args.no_label else labels)
     samples = dropped = 0
     depth = int(math.ceil(args.history / args.chunk))
     history = ChunkHistory(depth) if depth else None
