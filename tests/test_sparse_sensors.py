@@ -78,6 +78,13 @@ def test_a_method_trained_on_a_subset_records_it_scores_it_and_refuses_data_with
         score_recording(bundle, lacking)
 
 
+def test_commissioning_a_unit_without_a_sensor_the_model_reads_names_it(bundles: dict[str, Path],
+                                                                       later: list[Recording]) -> None:
+    method = ModelBundle.load(bundles["parity"]).health_method  # reads speed and torque
+    with pytest.raises(DataError, match=re.escape("recording must have the channel(s) ['torque']")):
+        method.commission([only(later[0], ("flow", "speed"))])
+
+
 def test_training_recordings_that_share_no_sensor_are_refused(later: list[Recording]) -> None:
     grouped = {"healthy": [only(later[0], ("flow",))], "load_alert": [only(later[1], ("torque",))]}
     with pytest.raises(DataError, match=r"must share at least one sensor .*Got recordings with \[\['flow'\], "
