@@ -195,7 +195,7 @@ def units(schema: pa.Schema) -> dict[str, str]:
 @cache
 def _wire_schema(name: str, version: int) -> pa.Schema:
     declared = schema_by_name(name, version)
-    fields = [f.with_metadata({b"unit": (f.metadata or {}).get(b"unit", b"")}) for f in declared]  # unit only
+    fields = [f.with_metadata({b"unit": (f.metadata or {}).get(b"unit", b"")}) for f in declared]
     return pa.schema(fields, metadata={NAME_KEY: name.encode(), VERSION_KEY: str(version).encode()})
 
 
