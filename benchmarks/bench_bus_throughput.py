@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, parse_shard, wait_alive
+from hydrowatch.bus.fleet_publisher import FleetEncoder
 from hydrowatch.io.mcap_io import iter_messages
 from services.plant import CHANNELS
-from services.plant.encoder import FleetEncoder
 
 REFERENCE_SAMPLES_PER_S = 200_000.0
 FLEET = "bench"

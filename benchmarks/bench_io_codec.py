@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from hydrowatch.bus.fleet_publisher import FleetEncoder
 from hydrowatch.channels import PLANT
 from hydrowatch.io import codec, decode_batch, encode_batch, read_recording, sensor_chunk_from_arrays, write_recording
 from hydrowatch.recording import Recording
 from hydrowatch.schemas import SENSOR_CHUNK
-from services.plant.encoder import FleetEncoder
 
 REFERENCE_SAMPLES_PER_S = 200_000.0
 CHANNELS = PLANT.names

@@ -2,9 +2,13 @@
 
 Every list of channels in hydrowatch is a view of one :class:`ChannelSet`; :data:`PLANT` is the
 simulated servo-valve hydrostatic transmission's (contract.md, "Data files"). Its order is the
-``sensor_chunk`` schema's (schemas/sensor_chunk.v1.json, which stays the versioned wire form; a
+``sensor_chunk`` schema's (schemas/sensor_chunk.v2.json, which stays the versioned wire form; a
 test keeps the two in agreement), and the order of its measured channels is the order of the
 plant kernel's output columns (:meth:`ChannelSet.column`).
+
+What a recording must have (:meth:`ChannelSet.missing`): every required channel (the command) and at
+least one sensor; each sensor alone is optional, so a machine with any subset of the sensors is a
+machine of the set (the health methods train on the sensors their recordings share and record them).
 
 Roles:
 
@@ -18,7 +22,7 @@ The unit conversions between the plant's SI state and the channels' units live h
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 
 from hydrowatch.errors import ParameterError
@@ -76,7 +80,8 @@ class ChannelSet:
     ----------
     channels : tuple of Channel
         At most one ``command`` channel, which is required (a rig that repeats one fixed cycle may
-        record none), at least one ``sensor``, names unique.
+        record none), at least one ``sensor``, names unique. A recording has every required channel and
+        at least one sensor (:meth:`missing`), whether each sensor is optional or not.
     """
 
     channels: tuple[Channel, ...]
@@ -149,6 +154,33 @@ class ChannelSet:
         """Names of the channels a recording may lack."""
         return tuple(c.name for c in self.channels if c.optional)
 
+    def missing(self, names: Collection[str]) -> list[str]:
+        """What a recording with channels ``names`` lacks to be one of this set, e.g. ``["voltage", "one of flow,
+        speed, torque"]``: the required channels it does not have, and a sensor when it has none (empty: nothing)."""
+        lacking = [c for c in self.required if c not in names]
+        if not any(s in names for s in self.sensors):
+            lacking.append(f"one of {', '.join(self.sensors)}")
+        return lacking
+
+    def select(self, names: str | Collection[str]) -> tuple[str, ...]:
+        """The channels ``names`` (a collection, or comma-separated text such as ``"voltage,speed"``) in this set's
+        column order, checked to be channels of the set and to make a recording of it (:meth:`missing`).
+
+        Raises
+        ------
+        ParameterError
+            Naming the unknown channels, or what the selection lacks.
+        """
+        wanted = [n.strip() for n in names.split(",") if n.strip()] if isinstance(names, str) else list(names)
+        unknown = [n for n in wanted if n not in self]
+        if unknown:
+            raise ParameterError(f"channels must be among {list(self.names)}. Got unknown {unknown}.")
+        lacking = self.missing(wanted)
+        if lacking:
+            raise ParameterError(f"channels must include every required channel and at least one sensor. Got "
+                                 f"{wanted}, without {lacking}.")
+        return tuple(n for n in self.names if n in wanted)
+
     @property
     def measured(self) -> tuple[str, ...]:
         """Names of every channel but the command: the plant's outputs, in kernel column order."""
@@ -168,15 +200,15 @@ class ChannelSet:
 
 PLANT = ChannelSet((
     Channel("voltage", "V", "command"),
-    Channel("flow", "L/min", "sensor"),
-    Channel("speed", "rad/s", "sensor"),
-    Channel("torque", "N·m", "sensor"),
+    Channel("flow", "L/min", "sensor", optional=True),
+    Channel("speed", "rad/s", "sensor", optional=True),
+    Channel("torque", "N·m", "sensor", optional=True),
     Channel("supply_pressure", "bar", "condition", optional=True),
     Channel("load_pressure", "bar", "condition", optional=True),
     Channel("temperature", "°C", "condition", optional=True),
 ))
-"""The simulated plant's channels (contract.md): valve command, the three sparse health sensors,
-and the optional condition measurements."""
-STUDY_RIG: tuple[str, ...] = (*PLANT.required, "temperature")
-"""Channels a rig like the study's measures: the required ones and the oil temperature, no
-pressures (what the demo's fleet publishes)."""
+"""The simulated plant's channels (contract.md): valve command, the three sparse health sensors (a
+recording has at least one of them, :meth:`ChannelSet.missing`), and the optional condition measurements."""
+STUDY_RIG: tuple[str, ...] = (PLANT.command, *PLANT.sensors, "temperature")
+"""Channels a rig like the study's measures: the command, the three sensors and the oil temperature,
+no pressures (what the demo's fleet publishes)."""

@@ -23,12 +23,15 @@ SAMPLE_RATE_HZ = 200.0
 INPUT = PLANT.command
 """The command channel every reference model is driven by."""
 SENSORS: tuple[str, ...] = PLANT.sensors
-"""The three sparse sensors the health model uses, in contract order."""
+"""The three sparse sensors the health methods use, in contract order; a recording has at least one."""
 
 UNITS: dict[str, str] = PLANT.units
 """Unit of ``t`` and of every channel (:data:`hydrowatch.channels.PLANT`)."""
 REQUIRED_CHANNELS: tuple[str, ...] = PLANT.required
+"""Channels every recording has: the command (and, besides, at least one of :data:`SENSORS`:
+:meth:`PLANT.missing <hydrowatch.channels.ChannelSet.missing>` checks both)."""
 OPTIONAL_CHANNELS: tuple[str, ...] = PLANT.optional
+"""Channels a recording may lack: each sensor (one at least stays) and the condition measurements."""
 
 
 @dataclass
@@ -40,8 +43,8 @@ class Recording:
     t : ndarray, shape (n,)
         Sample times, s, strictly increasing.
     channels : dict of str to ndarray, shape (n,)
-        ``voltage`` [V], ``flow`` [L/min], ``speed`` [rad/s], ``torque`` [N·m] and optionally
-        ``supply_pressure``, ``load_pressure`` [bar], ``temperature`` [°C].
+        ``voltage`` [V], at least one of ``flow`` [L/min], ``speed`` [rad/s], ``torque`` [N·m], and
+        optionally ``supply_pressure``, ``load_pressure`` [bar], ``temperature`` [°C].
     meta : dict
         ``fleet``, ``machine``, ``state`` (health label, or None), and anything else worth keeping
         (seed, parameters, effects).

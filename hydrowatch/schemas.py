@@ -22,12 +22,19 @@ import pyarrow as pa
 
 from hydrowatch.errors import DataError
 
-SCHEMA_VERSION = 1
-"""Version of ``sensor_chunk`` (the samples a recording holds) kept for readers of recording metadata; each schema
-has its own current version (:func:`current_version`): the highest one declared in ``schemas/``."""
+SCHEMA_VERSION = 2
+"""Version of ``sensor_chunk`` (the samples a recording holds) that hydrowatch writes, kept for readers of recording
+metadata (a test keeps it equal to ``current_version("sensor_chunk")``); each schema has its own current version
+(:func:`current_version`): the highest one declared in ``schemas/``."""
 
 NAME_KEY = b"hydrowatch.schema"
 VERSION_KEY = b"hydrowatch.schema_version"
+ONE_OR_MORE_KEY = b"hydrowatch.one_or_more_of"
+"""Schema metadata of a declaration with ``one_or_more_of``: the JSON list of optional fields of which every message
+must have at least one (``sensor_chunk`` v2: the sensors)."""
+OPTIONAL_KEY = b"optional"
+"""Field metadata of a declared field with ``"optional": true``: it may be left out of a message but, when
+present, holds no nulls (unlike a ``nullable`` field, which may also be null)."""
 
 _FILE_NAME = re.compile(r"^(?P<name>[a-z_]+)\.v(?P<version>\d+)\.json$")
 _SCALAR_TYPES: dict[str, pa.DataType] = {
@@ -84,7 +91,14 @@ def _arrow_field(spec: dict[str, Any], source: str) -> pa.Field:
     if missing:
         raise DataError(f"field declaration must have keys {sorted(missing)}. Got {sorted(spec)}.", source)
     metadata = {"unit": spec["unit"], "description": spec["description"]}
+    if spec.get("optional"):
+        metadata[OPTIONAL_KEY.decode()] = "true"
     return pa.field(spec["name"], _arrow_type(spec["type"], source), nullable=bool(spec["nullable"]), metadata=metadata)
+
+
+def may_be_absent(field: pa.Field) -> bool:
+    """Whether a declared field may be left out of a message (``nullable`` or ``optional`` in its declaration)."""
+    return bool(field.nullable) or (field.metadata or {}).get(OPTIONAL_KEY) == b"true"
 
 
 def _load(path: Path) -> pa.Schema:
@@ -106,6 +120,13 @@ def _load(path: Path) -> pa.Schema:
         VERSION_KEY: str(spec["version"]).encode(),
         b"hydrowatch.description": spec.get("description", "").encode(),
     }
+    group = spec.get("one_or_more_of")
+    if group is not None:
+        optional = {f.name for f in fields if may_be_absent(f)}
+        if not isinstance(group, list) or not group or not set(group) <= optional:
+            raise DataError(f"one_or_more_of must be a non-empty list of fields among the optional ones "
+                            f"{sorted(optional)}. Got {group!r}.", source)
+        metadata[ONE_OR_MORE_KEY] = json.dumps(group).encode()
     return pa.schema(fields, metadata=metadata)
 
 
@@ -190,13 +211,19 @@ def wire_schema(schema: pa.Schema) -> pa.Schema:
     return _wire_schema(name, version)
 
 
+def one_or_more_of(schema: pa.Schema) -> tuple[str, ...]:
+    """Fields of which every message of the declared ``schema`` must have at least one (empty: no such rule)."""
+    raw = (schema.metadata or {}).get(ONE_OR_MORE_KEY)
+    return tuple(json.loads(raw)) if raw else ()
+
+
 def describe(schema: pa.Schema) -> str:
     """One line per field: ``name type [unit] (optional) — description``."""
     lines = [f"{schema_name(schema)} v{schema_version(schema)}"]
     for f in schema:
         meta = f.metadata or {}
         unit = meta.get(b"unit", b"").decode()
-        optional = " (optional)" if f.nullable else ""
+        optional = " (optional)" if may_be_absent(f) else ""
         lines.append(
             f"  {f.name} {f.type}{f' [{unit}]' if unit else ''}{optional} — {meta.get(b'description', b'').decode()}"
         )
@@ -206,8 +233,10 @@ def describe(schema: pa.Schema) -> str:
 class _Spec(NamedTuple):
     name: bytes
     version: bytes
-    fields: dict[str, tuple[pa.DataType, bool]]
+    fields: dict[str, tuple[pa.DataType, bool, bool]]
+    """Name → (type, nullable, may be absent)."""
     names: frozenset[str]
+    one_or_more: tuple[str, ...]
 
 
 _SPECS: dict[int, tuple[pa.Schema, _Spec]] = {}
@@ -218,8 +247,9 @@ def _spec(schema: pa.Schema) -> _Spec:
     cached = _SPECS.get(id(schema))
     if cached is None or cached[0] is not schema:
         meta = schema.metadata or {}
-        fields = {f.name: (f.type, f.nullable) for f in schema}
-        spec = _Spec(meta.get(NAME_KEY, b""), meta.get(VERSION_KEY, b""), fields, frozenset(fields))
+        fields = {f.name: (f.type, f.nullable, may_be_absent(f)) for f in schema}
+        spec = _Spec(meta.get(NAME_KEY, b""), meta.get(VERSION_KEY, b""), fields, frozenset(fields),
+                     one_or_more_of(schema))
         cached = (schema, spec)
         _SPECS[id(schema)] = cached
     return cached[1]
@@ -230,8 +260,9 @@ def validate(
 ) -> None:
     """Check that ``batch`` is a valid message of ``schema``.
 
-    Every non-nullable field must be present, hold no nulls and have the declared type; nullable
-    fields may be absent; no undeclared field may appear. When the batch carries hydrowatch schema
+    Every field must have the declared type; a non-nullable field must hold no nulls and be present unless
+    declared ``optional``; nullable fields may be absent; at least one of a declaration's ``one_or_more_of``
+    must be present; no undeclared field may appear. When the batch carries hydrowatch schema
     metadata (it must with ``require_metadata``), its name must be the expected one and its version the
     expected one or an older declared version of it (then the batch is checked against that version's
     declaration: a reader of version N reads every version up to N).
@@ -271,9 +302,12 @@ def validate(
     if not spec.names.issuperset(got):
         unknown = sorted(set(got) - spec.names)
         raise DataError(f"{expected} fields must be among {schema.names}. Got unknown {unknown}.", source)
-    for name, (dtype, nullable) in spec.fields.items():
+    if spec.one_or_more and not any(name in got for name in spec.one_or_more):
+        raise DataError(f"{expected} must have at least one of the fields {list(spec.one_or_more)}. Got "
+                        f"{list(names)}.", source)
+    for name, (dtype, nullable, optional) in spec.fields.items():
         if name not in got:
-            if not nullable:
+            if not optional:
                 raise DataError(f"{expected} field '{name}' must be present. Got none.", source)
             continue
         if got[name] != dtype:
@@ -285,7 +319,7 @@ def validate(
 
 
 SENSOR_CHUNK = schema_by_name("sensor_chunk")
-"""Chunk of consecutive samples (t, voltage, flow, speed, torque, optional channels and state)."""
+"""Chunk of consecutive samples (t, voltage, at least one of flow, speed, torque, optional channels and state)."""
 KL_WINDOW = schema_by_name("kl_window")
 """Relative entropies of one window, one row per sensor × state."""
 HEALTH_VERDICT = schema_by_name("health_verdict")
@@ -306,6 +340,8 @@ __all__ = [
     "SchemaVersionError",
     "current_version",
     "describe",
+    "may_be_absent",
+    "one_or_more_of",
     "schema_by_name",
     "schema_name",
     "schema_version",

@@ -82,7 +82,7 @@ def test_bad_messages_after_a_good_one_are_still_rejected():
     # a known schema message checked against another expected schema
     with pytest.raises(SchemaMismatchError, match="must be 'kl_window'"):
         decode_batch(good, KL_WINDOW, "k")
-    v2 = fleet.replace_schema_metadata({**fleet.schema.metadata, b"hydrowatch.schema_version": b"2"})
+    v2 = fleet.replace_schema_metadata({**fleet.schema.metadata, b"hydrowatch.schema_version": b"3"})
     for _ in range(2):
         with pytest.raises(SchemaVersionError):
             decode_batch(encode_batch(v2.slice(0, 20)), SENSOR_CHUNK, "k")

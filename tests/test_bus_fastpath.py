@@ -12,6 +12,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from hydrowatch.bus.fleet_publisher import FleetEncoder
 from hydrowatch.bus.keys import parse_key
 from hydrowatch.bus.pubsub import Message
 from hydrowatch.errors import DataError
@@ -19,7 +20,6 @@ from hydrowatch.io.codec import check_payload, decode_batch, encode_batch, senso
 from hydrowatch.io.mcap_chunks import ChunkedWriter
 from hydrowatch.schemas import SENSOR_CHUNK
 from services.plant import CHANNELS
-from services.plant.encoder import FleetEncoder
 from services.plant.stepper import SimulationThread
 
 
@@ -54,6 +54,34 @@ def test_fleet_encoder_gives_encode_batch_bytes_and_turns_fast_after_checking(la
     # another chunk length: back to encode_batch, then fast again
     t, values = fleet_step(9, n=7)
     assert encoder.encode(t, values) == reference(t, values, labels) and not encoder.fast
+
+
+def test_the_fleet_publisher_relabels_keeps_history_and_drops_on_purpose():
+    """The plant service's and the demo's path: a machine whose state changes gets its new label from that step
+    on (the encoder learns again), every chunk goes to the history, every 5th message stays off the bus."""
+    from hydrowatch.bus.fleet_publisher import FleetPublisher
+    from hydrowatch.bus.history import ChunkHistory
+
+    class Bus:
+        messages_out = 0
+        sent: list[tuple[str, bytes]] = []
+
+        def put_payload(self, k: str, payload: bytes) -> None:
+            self.sent.append((k, payload))
+            self.messages_out += 1
+
+    bus, history = Bus(), ChunkHistory(10)
+    fleet = FleetPublisher(bus, "f", ["m0", "m1"], CHANNELS, ["healthy"] * 2, history, drop_every=5)  # type: ignore
+    labels = [["healthy", "healthy"]] * 3 + [["healthy", "load_warning"]] * 3
+    expected = []
+    for step, now in enumerate(labels):
+        t, values = fleet_step(step, machines=2)
+        fleet.publish({"t": t, **values}, now)
+        expected += list(zip(["hydro/f/m0/sensors", "hydro/f/m1/sensors"], reference(t, values, now)))
+        assert fleet.encoder.fast == (step not in (0, 3))  # learnt again at the change, checked on the next step
+    assert fleet.dropped == 2 and bus.sent == [e for i, e in enumerate(expected) if (i + 1) % 5]
+    assert decode_batch(bus.sent[-1][1], SENSOR_CHUNK).column("state").to_pylist() == ["load_warning"] * 20
+    assert [p for p, _ in history.between("hydro/f/m1/sensors", 0.0, 1.0)] == [p for k, p in expected if "m1" in k]
 
 
 def test_same_head_other_values_decode_to_the_new_values_and_start_time_reads_the_body():

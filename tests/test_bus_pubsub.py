@@ -34,7 +34,7 @@ PUBLISHER = textwrap.dedent("""
                     pub.put_payload(garbage, b"not arrow at all" * i)
                 if i in (20, 21):
                     b = chunk(i)
-                    v2 = {**b.schema.metadata, b"hydrowatch.schema_version": b"2"}
+                    v2 = {**b.schema.metadata, b"hydrowatch.schema_version": b"3"}
                     pub.put(version, b.replace_schema_metadata(v2))
                 if i == 25:
                     pub.put(other, status_batch("plant", None, "running", {}))

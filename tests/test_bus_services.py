@@ -80,7 +80,7 @@ def test_plant_to_recorder_every_sample_once(recording: Path) -> None:
         assert all(r.finished for r in recoveries)  # SIGTERM finished every file
     meta = machines["m001"][1][0].metadata["hydrowatch"]
     assert (meta["fleet"], meta["machine"], meta["state"], meta["schema_version"]) == (
-        FLEET, "m001", "pump_leak_alert", "1")
+        FLEET, "m001", "pump_leak_alert", "2")
 
 
 def test_replay_publishes_the_same_samples_in_order(recording: Path) -> None:

@@ -13,23 +13,32 @@ from hydrowatch.plant.kernel import CHANNELS_OUT
 from hydrowatch.plant.parameters import PARAMETER_INDEX
 from hydrowatch.plant.population import NOISE_CHANNELS
 from hydrowatch.plant.steady import steady_curve
-from hydrowatch.schemas import SENSOR_CHUNK, units
+from hydrowatch.schemas import SENSOR_CHUNK, may_be_absent, one_or_more_of, units
 
 
 def test_sensor_chunk_schema_and_registry_agree_on_names_order_units_and_optionality() -> None:
     assert SENSOR_CHUNK.names == [TIME, *PLANT.names, LABEL]
     assert units(SENSOR_CHUNK) == PLANT.units
     for c in PLANT:
-        assert SENSOR_CHUNK.field(c.name).nullable == c.optional, c.name
+        assert may_be_absent(SENSOR_CHUNK.field(c.name)) == c.optional, c.name
+        # a sensor may be left out but holds no nulls when present; a condition channel may hold nulls
+        assert SENSOR_CHUNK.field(c.name).nullable == (c.role == "condition"), c.name
+    assert one_or_more_of(SENSOR_CHUNK) == PLANT.sensors  # a chunk has at least one sensor, as a recording
     assert not SENSOR_CHUNK.field(TIME).nullable and SENSOR_CHUNK.field(LABEL).nullable
+
+
+def test_a_recording_needs_the_command_and_one_sensor_whichever() -> None:
+    assert PLANT.missing(["voltage", "torque"]) == [] and PLANT.missing(["voltage", "flow", "temperature"]) == []
+    assert PLANT.missing(["voltage", "temperature"]) == ["one of flow, speed, torque"]
+    assert PLANT.missing(["speed"]) == ["voltage"]
 
 
 def test_plant_set_roles_and_the_recording_views() -> None:
     assert PLANT.command == recording.INPUT == "voltage"
     assert PLANT.sensors == recording.SENSORS == ("flow", "speed", "torque")
     assert PLANT.with_role("condition") == ("supply_pressure", "load_pressure", "temperature")
-    assert recording.REQUIRED_CHANNELS == ("voltage", "flow", "speed", "torque")
-    assert recording.OPTIONAL_CHANNELS == PLANT.with_role("condition")
+    assert recording.REQUIRED_CHANNELS == ("voltage",)  # and one sensor at least: PLANT.missing
+    assert recording.OPTIONAL_CHANNELS == (*PLANT.sensors, *PLANT.with_role("condition"))
     assert recording.UNITS == {"t": "s", "voltage": "V", "flow": "L/min", "speed": "rad/s", "torque": "N·m",
                                "supply_pressure": "bar", "load_pressure": "bar", "temperature": "°C"}
     assert estimates.CHANNELS == (PLANT.command, *PLANT.sensors) and estimates.WIDTH == 4

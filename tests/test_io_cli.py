@@ -52,7 +52,7 @@ def test_import_then_info_then_export_round_trip(tmp_path, csv_file, capsys):
     assert info["channels"][0]["topic"] == "hydro/north/rig1/sensors" and info["channels"][0]["samples"] == 400
     assert info["metadata"]["hydrowatch"]["state"] == "relief_spring_warning"
     code, out, _ = run_cli(capsys, "info", mcap)
-    assert "hydro/north/rig1/sensors  hydrowatch.sensor_chunk.v1" in out and "status:    complete: 4 messages" in out
+    assert "hydro/north/rig1/sensors  hydrowatch.sensor_chunk.v2" in out and "status:    complete: 4 messages" in out
     parquet = tmp_path / "rig.parquet"
     assert run_cli(capsys, "export", mcap, "--out", parquet)[0] == 0
     back = read_recording(parquet)
@@ -62,12 +62,23 @@ def test_import_then_info_then_export_round_trip(tmp_path, csv_file, capsys):
 
 def test_import_missing_column_is_one_line_and_exit_2(tmp_path, csv_file, capsys):
     bad = tmp_path / "bad.csv"
-    bad.write_text("\n".join(",".join(line.split(",")[:4]) for line in csv_file.read_text().splitlines()) + "\n")
+    bad.write_text("\n".join(",".join(line.split(",")[:2]) for line in csv_file.read_text().splitlines()) + "\n")
     code, out, err = run_cli(capsys, "import", bad, "--out", tmp_path / "x.mcap")
     assert code == 2 and out == ""
-    assert err.count("\n") == 1 and err.startswith(f"hydrowatch import: error: {bad}: columns ['t', 'voltage'")
-    assert "Got no ['torque']" in err
+    assert err.count("\n") == 1 and err.startswith(f"hydrowatch import: error: {bad}: the command 'voltage' and at "
+                                                    "least one sensor of ['flow', 'speed', 'torque'] must be present")
+    assert "Got no ['one of flow, speed, torque']" in err
     assert not (tmp_path / "x.mcap").exists()  # nothing half-written
+
+
+def test_import_a_csv_without_torque_then_export_it(tmp_path, csv_file, capsys):
+    sparse = tmp_path / "no torque.csv"
+    sparse.write_text("\n".join(",".join(line.split(",")[:4]) for line in csv_file.read_text().splitlines()) + "\n")
+    code, out, _ = run_cli(capsys, "import", sparse, "--out", tmp_path / "s.mcap", "--label", "healthy")
+    assert code == 0 and "channels voltage,flow,speed," in out
+    code, _, _ = run_cli(capsys, "export", tmp_path / "s.mcap", "--out", tmp_path / "s.csv")
+    assert code == 0
+    assert (tmp_path / "s.csv").read_text().splitlines()[0] == '"t","voltage","flow","speed","state"'
 
 
 def test_import_unknown_label_and_wrong_suffix(tmp_path, csv_file, capsys):

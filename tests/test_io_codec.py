@@ -20,6 +20,7 @@ from hydrowatch.recording import UNITS
 from hydrowatch.schemas import (
     HEALTH_VERDICT,
     KL_WINDOW,
+    SCHEMA_VERSION,
     SENSOR_CHUNK,
     STATUS,
     current_version,
@@ -64,9 +65,10 @@ def test_schemas_carry_name_version_units_and_descriptions():
 def test_schema_files_are_plain_json_with_every_field_documented():
     files = sorted(p.name for p in schemas_dir().glob("*.json"))
     assert files == ["forecast.v1.json", "health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json",
-                     "sensor_chunk.v1.json", "status.v1.json"]
+                     "sensor_chunk.v1.json", "sensor_chunk.v2.json", "status.v1.json"]
     assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status", "forecast")] == [
-        1, 1, 2, 1, 1]
+        2, 1, 2, 1, 1]
+    assert SCHEMA_VERSION == current_version("sensor_chunk")  # what recording metadata says it holds
     readme = (schemas_dir() / "README.md").read_text()
     for name in files:
         spec = json.loads((schemas_dir() / name).read_text())
@@ -86,7 +88,7 @@ def test_sensor_chunk_round_trip_keeps_values_units_and_version(chunk):
     back = decode_batch(data, SENSOR_CHUNK, "test")
     assert back.equals(batch)
     assert back.schema.field("torque").metadata[b"unit"] == "N·m".encode()
-    assert back.schema.metadata[b"hydrowatch.schema_version"] == b"1"
+    assert back.schema.metadata[b"hydrowatch.schema_version"] == b"2"
     t2, ch2 = arrays_from_sensor_chunk(back)
     np.testing.assert_array_equal(t2, t)
     assert sorted(ch2) == sorted(channels)
@@ -105,11 +107,47 @@ def test_labels_travel_as_strings(chunk):
 
 def test_missing_required_channel_and_unknown_channel_are_rejected(chunk):
     t, channels = chunk
-    del channels["torque"]
-    with pytest.raises(DataError, match="'torque' must be given"):
+    del channels["voltage"]
+    with pytest.raises(DataError, match="'voltage' must be given"):
         sensor_chunk_from_arrays(t, channels)
     with pytest.raises(DataError, match=r"unknown \['pressure'\]"):
         sensor_chunk_from_arrays(t, {**chunk[1], "pressure": t})
+    with pytest.raises(DataError, match=r"at least one of the sensors \['flow', 'speed', 'torque'\]"):
+        sensor_chunk_from_arrays(t, {"voltage": t, "temperature": t})
+
+
+@pytest.mark.parametrize("sensors", [("flow",), ("speed",), ("torque",), ("flow", "torque"), ("speed", "torque")])
+def test_a_chunk_of_any_sensor_subset_round_trips_and_one_of_none_is_refused(chunk, sensors):
+    t, channels = chunk
+    kept = {c: v for c, v in channels.items() if c in ("voltage", *sensors, "temperature")}
+    back = decode_batch(encode_batch(sensor_chunk_from_arrays(t, kept)), SENSOR_CHUNK, "k")
+    assert back.schema.names == ["t", "voltage", *sensors, "temperature"]
+    np.testing.assert_array_equal(arrays_from_sensor_chunk(back)[1][sensors[0]], channels[sensors[0]])
+    # a sensor, when present, holds no nulls (optional, not nullable)
+    cols = [pa.array([None] * 100, pa.float64()) if n == sensors[0] else c for n, c in zip(back.schema.names,
+                                                                                         back.columns)]
+    with pytest.raises(DataError, match=f"field '{sensors[0]}' must have no nulls. Got 100."):
+        decode_batch(encode_batch(pa.RecordBatch.from_arrays(cols, schema=back.schema)), SENSOR_CHUNK, "k")
+    # no sensor at all: the schema's one_or_more_of rule, whatever wrote the message
+    wire = wire_schema(SENSOR_CHUNK)
+    bare_schema = pa.schema([wire.field("t"), wire.field("voltage")], metadata=wire.metadata)
+    bare = pa.RecordBatch.from_arrays([pa.array(t), pa.array(channels["voltage"])], schema=bare_schema)
+    with pytest.raises(DataError, match=r"k: sensor_chunk must have at least one of the fields \['flow', 'speed'"):
+        decode_batch(encode_batch(bare), SENSOR_CHUNK, "k")
+
+
+def test_a_sensor_chunk_v1_is_still_read_and_must_have_every_sensor(chunk):
+    t, channels = chunk
+    v1 = wire_schema(schema_by_name("sensor_chunk", 1))  # what a hydrowatch of before 2026-11-26 sends
+    batch = sensor_chunk_from_arrays(t, channels)
+    old = pa.RecordBatch.from_arrays(batch.columns, schema=pa.schema([v1.field(n) for n in batch.schema.names],
+                                                                     metadata=v1.metadata))
+    back = decode_batch(encode_batch(old), SENSOR_CHUNK, "k")
+    assert back.schema.metadata[b"hydrowatch.schema_version"] == b"1"
+    np.testing.assert_array_equal(arrays_from_sensor_chunk(back)[1]["torque"], channels["torque"])
+    lacking = pa.RecordBatch.from_arrays(old.columns[:4], schema=pa.schema(list(old.schema)[:4], metadata=v1.metadata))
+    with pytest.raises(DataError, match="sensor_chunk field 'torque' must be present"):
+        decode_batch(encode_batch(lacking), SENSOR_CHUNK, "k")
 
 
 def test_garbage_other_schema_and_other_version_are_three_distinct_errors(chunk):
@@ -124,8 +162,8 @@ def test_garbage_other_schema_and_other_version_are_three_distinct_errors(chunk)
     with pytest.raises(SchemaMismatchError, match="must carry schema metadata"):
         decode_batch(foreign, SENSOR_CHUNK, "key/x")
     batch = sensor_chunk_from_arrays(*chunk)
-    v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"2"})
-    with pytest.raises(SchemaVersionError, match="sensor_chunk schema version must be 1 or an older declared one"):
+    v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"3"})
+    with pytest.raises(SchemaVersionError, match="sensor_chunk schema version must be 2 or an older declared one"):
         decode_batch(encode_batch(v2), SENSOR_CHUNK, "key/x")
     assert not issubclass(SchemaVersionError, SchemaMismatchError)
 

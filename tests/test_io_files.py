@@ -56,11 +56,11 @@ def test_mcap_layout_follows_the_contract(tmp_path):
     assert info["finished"] and info["messages"] == 10  # 0.5 s chunks
     (channel,) = info["channels"]
     assert channel["topic"] == "hydro/f1/m7/sensors"
-    assert channel["schema"] == "hydrowatch.sensor_chunk.v1"
+    assert channel["schema"] == "hydrowatch.sensor_chunk.v2"
     assert channel["message_encoding"] == "x-arrow-ipc-stream"
     assert channel["samples"] == 1000 and channel["t_s"] == [3.0, 3.0 + 999 / 200]
     meta = info["metadata"]["hydrowatch"]
-    assert meta["state"] == "healthy" and meta["schema_version"] == "1" and '"torque": "N·m"' in meta["units"]
+    assert meta["state"] == "healthy" and meta["schema_version"] == "2" and '"torque": "N·m"' in meta["units"]
     assert info["log_time_ns"] == [3_000_000_000, 7_500_000_000]
 
 
@@ -85,9 +85,29 @@ def test_csv_header_units_are_checked(tmp_path):
 
 
 def test_csv_missing_column_names_it(tmp_path):
-    path = write_csv(tmp_path / "m.csv", ["t", "voltage", "flow", "speed"], [r[:4] for r in csv_rows()])
-    with pytest.raises(DataError, match=r"m.csv: .*Got no \['torque'\]\. Add them \(units: torque \[N·m\]\)"):
+    path = write_csv(tmp_path / "m.csv", ["t", "flow", "speed"], [[r[0], *r[2:4]] for r in csv_rows()])
+    with pytest.raises(DataError, match=r"m.csv: the command 'voltage' and at least one sensor .*Got no \['voltage'\]"
+                                        r".*Add them \(units: voltage \[V\]\)"):
         read_recording(path)
+    path = write_csv(tmp_path / "s.csv", ["t", "voltage", "temperature", "torque"], [[*r[:2], 40.0, ""]
+                                                                                    for r in csv_rows()])
+    with pytest.raises(DataError, match=r"s.csv: .*Got no \['one of flow, speed, torque'\]; the file has \['t', "
+                                        r"'voltage', 'temperature'\]\. Add them \(units: flow \[L/min\], speed "
+                                        r"\[rad/s\], torque \[N·m\]\)"):
+        read_recording(path)  # an empty torque column is no torque sensor
+
+
+@pytest.mark.parametrize("suffix", [".mcap", ".parquet", ".csv"])
+@pytest.mark.parametrize("sensors", [("flow",), ("speed",), ("torque",), ("flow", "speed"), ("flow", "torque"),
+                                     ("speed", "torque")])
+def test_a_recording_of_any_sensor_subset_round_trips(tmp_path, suffix, sensors):
+    full = make_recording()
+    extra = {"temperature": np.linspace(40, 41, len(full)), "load_pressure": np.linspace(10, 20, len(full))}
+    rec = Recording(full.t, {"voltage": full["voltage"], **{s: full[s] for s in sensors}, **extra}, full.meta)
+    back = read_recording(write_recording(rec, tmp_path / f"r{suffix}"))
+    assert sorted(back.channels) == sorted(["voltage", *sensors, *extra])
+    for name, values in rec.channels.items():
+        np.testing.assert_array_equal(back[name], values)
 
 
 def test_csv_wrong_type_names_row(tmp_path):

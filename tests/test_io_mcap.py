@@ -14,7 +14,7 @@ import pytest
 from hydrowatch.errors import DataError
 from hydrowatch.io import McapWriter, Recovery, encode_batch, iter_messages, read_recording, summarize
 from hydrowatch.io.codec import sensor_chunk_from_arrays
-from hydrowatch.schemas import STATUS, wire_schema
+from hydrowatch.schemas import SCHEMA_VERSION, STATUS, wire_schema
 
 TOPIC = "hydro/f1/m1/sensors"
 
@@ -46,7 +46,7 @@ def test_writer_streams_several_topics_and_iter_messages_reads_them_back(tmp_pat
         for i in range(30):
             writer.write(TOPIC, chunk(i), i * 500_000_000)
         writer.write("hydro/f1/m1/status", status, 15_000_000_000)
-        with pytest.raises(DataError, match="must all be sensor_chunk v1. Got status v1"):
+        with pytest.raises(DataError, match="must all be sensor_chunk v2. Got status v1"):
             writer.write(TOPIC, status, 15_000_000_001)
     got = list(iter_messages(path))
     assert [g[0] for g in got] == [TOPIC] * 30 + ["hydro/f1/m1/status"]
@@ -67,7 +67,7 @@ def write_with_bad_message(path, payload):
     with McapWriter(path) as writer:
         for i in range(5):
             writer.write(TOPIC, chunk(i), i * 500_000_000)
-        writer.write_encoded(TOPIC, payload, 2_500_000_000, "sensor_chunk", 1)
+        writer.write_encoded(TOPIC, payload, 2_500_000_000, "sensor_chunk", SCHEMA_VERSION)
 
 
 def test_malformed_payload_in_file_is_named_and_complete_messages_come_first(tmp_path):
@@ -89,11 +89,11 @@ def test_malformed_payload_in_file_is_named_and_complete_messages_come_first(tmp
 
 
 def test_wrong_schema_version_in_file(tmp_path):
-    path = tmp_path / "v2.mcap"
+    path = tmp_path / "v3.mcap"
     batch = chunk(5)
-    v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"2"})
+    v2 = batch.replace_schema_metadata({**batch.schema.metadata, b"hydrowatch.schema_version": b"3"})
     write_with_bad_message(path, encode_batch(v2))
-    with pytest.raises(DataError, match="message 5 .*sensor_chunk schema version must be 1 or an older"):
+    with pytest.raises(DataError, match="message 5 .*sensor_chunk schema version must be 2 or an older"):
         read_recording(path)
 
 

@@ -380,7 +380,9 @@ def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
 
     Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m], and the oil temperature
     [°C] as 5th channel when ``temperature`` is True, or None (default) and the recording has
-    one; window k covers samples ``[k·hop, k·hop + window)``.
+    one; window k covers samples ``[k·hop, k·hop + window)``. A sensor the recording lacks is NaN
+    (a model whose ``sensors`` leave it out fills it from the relations; for one that reads it, every
+    window is invalid).
     """
     check_window(window, hop)
     channels = list(CHANNELS)
@@ -390,4 +392,5 @@ def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
                         f"Got channels {sorted(rec.channels)}. Pass temperature=None to use it when present.")
     if has and temperature is not False:
         channels.append(TEMPERATURE)
-    return np.stack([sliding_windows(rec[c], window, hop) for c in channels], axis=-1)
+    nan = np.full(len(rec), np.nan)
+    return np.stack([sliding_windows(rec.channels.get(c, nan), window, hop) for c in channels], axis=-1)

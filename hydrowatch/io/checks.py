@@ -11,8 +11,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from hydrowatch.channels import PLANT
 from hydrowatch.errors import DataError
-from hydrowatch.recording import REQUIRED_CHANNELS, SAMPLE_RATE_HZ, UNITS
+from hydrowatch.recording import SAMPLE_RATE_HZ, UNITS
 
 FAULTS: tuple[str, ...] = ("load", "pump_leak", "motor_leak", "valve_leak", "valve_coil", "relief_spring")
 """Faults a recording may be labelled with (the plant's fault catalogue)."""
@@ -119,28 +120,34 @@ def nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
 
 def check_channels(
     t: np.ndarray, channels: Mapping[str, np.ndarray], source: str | None = None,
-    required: Sequence[str] = REQUIRED_CHANNELS,
+    required: Sequence[str] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Check required channels are present and NaN-free; drop optional channels that are all NaN.
+    """Check the channels a use needs are present and NaN-free; drop the others that are all NaN.
 
-    ``required``: the channels this use needs (default every required channel of the plant; ``identify``
-    needs only its input and output). A channel outside it that is all NaN is dropped like an optional one.
+    ``required``: the channels this use needs; None (default) is the plant's rule, the command and at least one
+    sensor (:meth:`PLANT.missing <hydrowatch.channels.ChannelSet.missing>`: a recording of any subset of the
+    sensors reads); ``identify`` needs only its input and output. A channel outside it that is all NaN is dropped
+    like an optional one (a sensor column left empty is a sensor the machine does not have).
 
     Returns
     -------
     dict of str to ndarray
         The channels to keep (an optional channel with no value at all is left out).
     """
-    missing = [c for c in required if c not in channels]
+    needed = tuple(c for c in PLANT.required if c in channels) if required is None else tuple(required)
+    present = [c for c in channels if c in needed or not np.isnan(channels[c]).all()]
+    missing = PLANT.missing(present) if required is None else [c for c in needed if c not in channels]
     if missing:
-        raise DataError(
-            f"columns {['t', *required]} must all be present. Got no {missing}. "
-            "Add them (units: " + ", ".join(f"{c} [{UNITS[c]}]" for c in missing) + ").",
-            source,
-        )
+        add = [c for c in missing if c in UNITS] + [c for c in PLANT.sensors if c not in present and len(missing) >
+                                                     sum(m in UNITS for m in missing)]
+        units = ", ".join(f"{c} [{UNITS[c]}]" for c in add)
+        wanted = (f"the command '{PLANT.command}' and at least one sensor of {list(PLANT.sensors)}"
+                  if required is None else f"columns {['t', *needed]}")
+        raise DataError(f"{wanted} must be present. Got no {missing}; the file has {['t', *present]}. "
+                        f"Add them (units: {units}).", source)
     kept = {}
     for name, values in channels.items():
-        if name not in required and np.isnan(values).all():
+        if name not in needed and np.isnan(values).all():
             continue
         runs = nan_runs(values)
         if runs:

@@ -1,6 +1,7 @@
 """Read and write a :class:`~hydrowatch.recording.Recording` as MCAP, Parquet or CSV (by suffix).
 
-Every read ends in the same checks (:mod:`hydrowatch.io.checks`): required channels, units, a
+Every read ends in the same checks (:mod:`hydrowatch.io.checks`): the command and at least one
+sensor (any subset of flow, speed, torque; other channels are kept as they are), units, a
 strictly increasing 200 Hz time base, no NaN, known health labels. Per-row labels that vary
 within a file are kept in ``recording.meta["labels"]`` (ndarray of str, shape (n,)) with
 ``meta["state"] = None``; a constant label becomes ``meta["state"]``.
@@ -21,7 +22,7 @@ from hydrowatch.io.codec import LABEL_FIELD, arrays_from_sensor_chunk, sensor_ch
 from hydrowatch.io.mcap_io import METADATA_NAME, McapWriter, Recovery, iter_messages, topic
 from hydrowatch.io.tabular import read_csv, read_parquet, write_table
 from hydrowatch.log import event, get_logger
-from hydrowatch.recording import REQUIRED_CHANNELS, SAMPLE_RATE_HZ, UNITS, Recording
+from hydrowatch.recording import SAMPLE_RATE_HZ, UNITS, Recording
 from hydrowatch.schemas import SCHEMA_VERSION
 
 SUFFIXES = (".mcap", ".parquet", ".csv")
@@ -174,8 +175,9 @@ def read_recording(path: str | Path, *, machine: str | None = None, recover: boo
         recording's ``meta["recovered"]`` then says how much was recovered. Without it such a
         file is an error.
     required : sequence of str, optional
-        The channels the caller needs (default: every required channel of the plant). ``identify``
-        passes its input and output, so a CSV or Parquet file with only those columns reads.
+        The channels the caller needs (default: the plant's rule, the command and at least one sensor,
+        :meth:`~hydrowatch.channels.ChannelSet.missing`). ``identify`` passes its input and output, so a CSV
+        or Parquet file with only those columns reads.
 
     Raises
     ------
@@ -191,7 +193,7 @@ def read_recording(path: str | Path, *, machine: str | None = None, recover: boo
         table = read_csv(path) if suffix == ".csv" else read_parquet(path)
         t, channels, labels, meta = table.t, table.channels, table.labels, dict(table.meta)
     check_time_base(t, source)
-    channels = check_channels(t, channels, source, REQUIRED_CHANNELS if required is None else tuple(required))
+    channels = check_channels(t, channels, source, None if required is None else tuple(required))
     if meta.get("state") is not None:
         check_state(meta["state"], source, " in the file metadata")
     meta.pop("labels", None)

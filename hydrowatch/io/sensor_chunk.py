@@ -8,12 +8,14 @@ import numpy as np
 import pyarrow as pa
 
 from hydrowatch.errors import DataError
-from hydrowatch.schemas import SENSOR_CHUNK, wire_schema
+from hydrowatch.schemas import SENSOR_CHUNK, may_be_absent, one_or_more_of, wire_schema
 
 LABEL_FIELD = "state"
 """Optional per-sample health label column of a sensor chunk."""
 
 _WIRE = wire_schema(SENSOR_CHUNK)
+_ONE_OR_MORE = one_or_more_of(SENSOR_CHUNK)
+_REQUIRED = frozenset(f.name for f in SENSOR_CHUNK if not may_be_absent(f))
 
 
 def sensor_chunk_from_arrays(t: np.ndarray, channels: Mapping[str, np.ndarray]) -> pa.RecordBatch:
@@ -24,7 +26,7 @@ def sensor_chunk_from_arrays(t: np.ndarray, channels: Mapping[str, np.ndarray]) 
     t : ndarray, shape (n,)
         Sample times, s.
     channels : mapping of str to ndarray, shape (n,)
-        ``voltage`` [V], ``flow`` [L/min], ``speed`` [rad/s], ``torque`` [N·m], optionally
+        ``voltage`` [V], at least one of ``flow`` [L/min], ``speed`` [rad/s], ``torque`` [N·m], optionally
         ``supply_pressure``/``load_pressure`` [bar], ``temperature`` [°C] and ``state`` (labels, str).
 
     Returns
@@ -36,10 +38,13 @@ def sensor_chunk_from_arrays(t: np.ndarray, channels: Mapping[str, np.ndarray]) 
     unknown = sorted(set(columns) - set(SENSOR_CHUNK.names))
     if unknown:
         raise DataError(f"sensor chunk channels must be among {SENSOR_CHUNK.names[1:]}. Got unknown {unknown}.")
+    if _ONE_OR_MORE and not any(c in columns for c in _ONE_OR_MORE):
+        raise DataError(f"sensor chunk must have at least one of the sensors {list(_ONE_OR_MORE)}. Got "
+                        f"{sorted(columns)}.")
     fields, arrays = [], []
     for field in _WIRE:
         if field.name not in columns:
-            if not field.nullable:
+            if field.name in _REQUIRED:
                 raise DataError(f"sensor chunk channel '{field.name}' must be given. Got {sorted(columns)}.")
             continue
         values = columns[field.name]

@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkab
 
 import numpy as np
 
-from hydrowatch.errors import ParameterError
-from hydrowatch.recording import INPUT, Recording
+from hydrowatch.errors import DataError, ParameterError
+from hydrowatch.log import event, get_logger
+from hydrowatch.recording import INPUT, SENSORS, Recording
 from hydrowatch.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -34,11 +35,48 @@ if TYPE_CHECKING:
 
 HEALTHY = "healthy"
 """The state every training set must include (it trains the reference models and the commissionings)."""
+_log = get_logger(__name__)
 
 
 def ordered_states(states: Sequence[str]) -> list[str]:
     """``healthy`` first, then the other states in the order given."""
     return [HEALTHY, *[s for s in states if s != HEALTHY]]
+
+
+def shared_sensors(grouped: Mapping[str, list[Recording]]) -> list[str]:
+    """The sensors every training recording has, in :data:`~hydrowatch.recording.SENSORS` order: what a method
+    trains on and records (a recording may carry any subset of the sensors, :mod:`hydrowatch.channels`).
+
+    Raises
+    ------
+    DataError
+        When the recordings share no sensor (naming what each kind of recording has).
+    """
+    runs = [r for group in grouped.values() for r in group]
+    shared = [s for s in SENSORS if all(s in r.channels for r in runs)]
+    if not shared:
+        kinds = sorted({tuple(s for s in SENSORS if s in r.channels) for r in runs})
+        raise DataError(f"training recordings must share at least one sensor of {list(SENSORS)}. Got recordings "
+                        f"with {[list(k) for k in kinds]}; train on recordings of one set of sensors.")
+    dropped = sorted({s for r in runs for s in SENSORS if s in r.channels} - set(shared))
+    if dropped:
+        event(_log, "sensors not in every training recording left out", sensors=",".join(dropped))
+    return shared
+
+
+def check_channels(method: HealthMethod, recording: Recording) -> None:
+    """Refuse a recording that lacks a channel the fitted ``method`` reads (the command and its sensors).
+
+    Raises
+    ------
+    DataError
+        Naming the missing channels, the method's channels and the recording's.
+    """
+    missing = [c for c in method.channels if c not in recording.channels]
+    if missing:
+        raise DataError(f"recording must have the channel(s) {missing}: this {method.name} model was trained on "
+                        f"{method.channels} and reads each of them. Got {sorted(recording.channels)}. Score it with "
+                        "a model trained on recordings of the sensors it has.", recording.meta.get("source"))
 
 
 def data_summary(grouped: Mapping[str, list[Recording]], states: Sequence[str]) -> dict[str, dict[str, Any]]:

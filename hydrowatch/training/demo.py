@@ -6,9 +6,11 @@
 3. accuracy of each on recordings of another seed, with the training command, a working duty
    cycle and a narrow range (logged as MLflow metrics); the alias ``champion`` goes to the one
    with the best duty-cycle accuracy (ties: parity, then NARX);
-4. a live fleet on the bus: machines with faults appearing (degradation paths) published by an
-   in-process fleet, a recorder and a scorer as separate processes, the live table fed by the
-   health topic, each machine's wear (index, trend, time to alert) by the health and forecast topics;
+4. a live fleet on the bus: machines with faults appearing (degradation paths) simulated in-process
+   and published through the plant service's :class:`~hydrowatch.bus.fleet_publisher.FleetPublisher`
+   (each machine's label follows its path), a recorder and a scorer as separate processes, the live
+   table fed by the health topic, each machine's wear (index, trend, time to alert) by the health and
+   forecast topics;
 5. an HTML report with the plots, confusion matrices and per-machine timelines.
 """
 
@@ -22,12 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from hydrowatch.bus import BusSettings, Publisher, Subscriber, alive, free_port, key, key_expr, open_session
+from hydrowatch.bus import BusSettings, Publisher, Subscriber, alive, free_port, key_expr, open_session
+from hydrowatch.bus.fleet_publisher import FleetPublisher
 from hydrowatch.channels import STUDY_RIG
 from hydrowatch.io import write_recording
-from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.excitation import FilteredNoiseCommand
 from hydrowatch.plant.faults import LEVELS, STUDY_STATES
@@ -134,14 +134,13 @@ def live_fleet(s: DemoSettings, bundle_dir: Path, show: bool) -> dict[str, Any]:
                     raise RuntimeError(f"the scorer did not come up; see {logs / 'scorer.log'}")
                 time.sleep(0.5)
             fleet.settle(2.0)
+            sensors = FleetPublisher(publisher, FLEET, fleet.machine_ids, STUDY_RIG, fleet.states)
             wall0, last_draw = time.monotonic(), 0.0
             while fleet.time < s.live_seconds:
                 out = fleet.step(command.next(n))
                 labels = fleet.states
+                sensors.publish(out, labels)
                 for i, machine in enumerate(fleet.machine_ids):
-                    channels = {c: out[c][i] for c in STUDY_RIG}
-                    channels["state"] = np.full(n, labels[i], dtype=object)
-                    publisher.put(key(FLEET, machine, "sensors"), sensor_chunk_from_arrays(out["t"][i], channels))
                     truth[machine].append((float(out["t"][i][0]), labels[i]))
                 _receive(health, table, timelines, wear)
                 ahead = wall0 + fleet.time / s.speed - time.monotonic()

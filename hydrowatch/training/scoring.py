@@ -22,6 +22,7 @@ import numpy as np
 from hydrowatch.condition.degradation import Degradation
 from hydrowatch.condition.forecast import forecast_alert
 from hydrowatch.errors import ParameterError
+from hydrowatch.methods.base import check_channels
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.verdict import INVALID, UNKNOWN
@@ -70,7 +71,13 @@ def score_recording(bundle: ModelBundle, recording: Recording, smoothing: int = 
     ``summary`` has ``windows``, ``counts`` (state → n), ``accuracy`` (None when unlabelled),
     ``model_version`` and, for parity bundles, ``forecast`` (fault → :meth:`Forecast.to_dict
     <hydrowatch.condition.forecast.Forecast.to_dict>`, :func:`degradation_forecast`).
+
+    Raises
+    ------
+    DataError
+        When the recording lacks a channel the bundle's method reads (naming it).
     """
+    check_channels(bundle.health_method, recording)
     if int(smoothing) != smoothing or smoothing < 1 or (smoothing > 1 and not bundle.health_method.pools):
         raise ParameterError(f"smoothing must be an integer >= 1, and 1 for a bundle whose method does not pool "
                              f"(entropy). Got {smoothing!r} ({bundle.method} bundle); pooling windows is the parity "

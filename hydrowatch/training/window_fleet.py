@@ -15,7 +15,9 @@ operations, not 1000 Python objects:
    rule every method's stream uses) and written with one scatter per chunk length;
 2. anything else (a gap, NaN, a late chunk, several chunks of one machine) goes through
    :func:`~hydrowatch.training.chunks.plan_chunk` machine by machine, as before: a break makes the
-   window in progress ``invalid`` with its reason and restarts the machine's window;
+   window in progress ``invalid`` with its reason and restarts the machine's window; a chunk without
+   a channel the method reads (a machine without a sensor the model was trained on) is such a break,
+   its reason naming the channel;
 3. windows that close are copied out and handed to the method's judge in batches of at most
    ``batch`` windows (the parity judge pools a machine's recent windows when asked,
    :mod:`hydrowatch.methods.parity.online`).
@@ -47,6 +49,7 @@ from hydrowatch.training.chunks import (
     optional_columns,
     plan_chunk,
 )
+from hydrowatch.verdict import INVALID, Verdict
 
 
 @dataclass
@@ -111,6 +114,8 @@ class WindowFleet:
         """Time of the first sample received since the stream (re)started, s (NaN: none yet)."""
         self.samples = 0
         """Samples fed so far, over every machine."""
+        self._lacking: dict[int, str] = {}
+        """Machines whose last chunk lacked a channel the method reads → the reason said (said once)."""
 
     @property
     def machines(self) -> list[str]:
@@ -254,27 +259,53 @@ class WindowFleet:
         return out + self._judge(closed)
 
     def _plan(self, batch: ChunkBatch, i: int, slot: int, closed: list[_Closed], out: list[WindowVerdict]) -> None:
-        """One chunk that is not clean, through :func:`plan_chunk`: segments are fed, breaks restart the window."""
+        """One chunk that is not clean, through :func:`plan_chunk`: segments are fed, breaks restart the window.
+
+        A chunk without a channel the method reads (and has no default for) is one break, dropped whole: the
+        window in progress is ``invalid`` with a reason naming the channel, or, when none is in progress, the
+        chunk itself, once until the machine sends the channel again."""
         a, b = int(batch.offsets[i]), int(batch.offsets[i + 1])
         t = batch.t[a:b]
         expected = self._next_t[slot]
+        lacking = [c for c in self.columns if c not in self.defaults and batch.absent[c][i]]
+        if lacking and t.size:
+            self._lacks(slot, t, lacking, out)
+            return
+        self._lacking.pop(slot, None)
         ops, next_t = plan_chunk(t, self._matrix(batch, np.arange(a, b)), self.columns,
                                  None if np.isnan(expected) else float(expected), optional_columns(self.defaults))
         for op in ops:
             if isinstance(op, Break):
-                if self._fed[slot]:  # the window in progress began at its place after the (re)start
-                    begun = int(self._phase[slot] + self._count[slot] * self.hop)
-                    invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), op)
-                else:  # still warming up: the window would have begun with the stream
-                    invalid = cut_short(self._names[slot], 0, int(self._seen[slot]), float(self._start_t[slot]), op)
-                if invalid is not None:
-                    out.append(invalid)
-                self._restart(slot)
+                self._break(slot, op, out)
             else:
                 one = np.array([slot])
                 if op.t.size:
                     self._feed(one, op.t[None], op.x[None], closed)
         self._next_t[slot] = np.nan if next_t is None else next_t
+
+    def _break(self, slot: int, brk: Break, out: list[WindowVerdict]) -> None:
+        """The window in progress cut short by ``brk`` (``invalid``, when a sample of it came), the stream restarted."""
+        if self._fed[slot]:  # the window in progress began at its place after the (re)start
+            begun = int(self._phase[slot] + self._count[slot] * self.hop)
+            invalid = cut_short(self._names[slot], begun, int(self._fed[slot]), float(self._t0[slot]), brk)
+        else:  # still warming up: the window would have begun with the stream
+            invalid = cut_short(self._names[slot], 0, int(self._seen[slot]), float(self._start_t[slot]), brk)
+        if invalid is not None:
+            out.append(invalid)
+        self._restart(slot)
+
+    def _lacks(self, slot: int, t: np.ndarray, lacking: list[str], out: list[WindowVerdict]) -> None:
+        """A chunk without the channels ``lacking``: a break naming them (:meth:`_plan`)."""
+        reads = [c for c in self.columns if c not in self.defaults]
+        reason = f"no {', '.join(repr(c) for c in lacking)} in the chunk: the model reads {reads} (trained on them)"
+        said = len(out)
+        if self._fed[slot] or self._seen[slot]:
+            self._break(slot, Break(reason, float(t[0])), out)
+        if len(out) == said and self._lacking.get(slot) != reason:  # no window cut short: say it once, on the chunk
+            out.append(WindowVerdict(self._names[slot], float(t[0]), float(t[-1] + DT),
+                                     Verdict(INVALID, None, {}, reason)))
+        self._lacking[slot] = reason
+        self._next_t[slot] = np.nan
 
     # -- judging ------------------------------------------------------------------------------------
     def _judge(self, closed: list[_Closed]) -> list[WindowVerdict]:

@@ -22,7 +22,8 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from hydrowatch.bus import Publisher, Shard, StatusReporter, add_bus_arguments, key, key_expr, open_session, parse_shard
+from hydrowatch.bus import Publisher, Shard, StatusReporter, add_bus_arguments, key_expr, open_session, parse_shard
+from hydrowatch.bus.fleet_publisher import FleetPublisher
 from hydrowatch.bus.history import ChunkHistory, HistoryServer
 from hydrowatch.bus.service import LINGER_S, service_main
 from hydrowatch.bus.session import settings_from_args
@@ -35,13 +36,12 @@ from hydrowatch.plant.faults import parse_state, random_state_parameters
 from hydrowatch.plant.fleet import DegradationPath, Wear
 from hydrowatch.plant.paths import FORM, parse_degradation
 from hydrowatch.recording import SAMPLE_RATE_HZ
-from services.plant.encoder import FleetEncoder
 from services.plant.stepper import SimulationThread
 
 NAME = "plant"
 HELP = "publish a simulated fleet on hydro/<fleet>/<machine>/sensors in real time or faster"
 CHANNELS = PLANT.names
-"""Channels of every published chunk: all the plant's, in ``sensor_chunk`` order."""
+"""Channels of every published chunk by default: all the plant's, in ``sensor_chunk`` order (``--channels``: fewer)."""
 log = get_logger("services.plant")
 
 
@@ -86,6 +86,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "replaced by the path")
     parser.add_argument("--no-noise", action="store_true", help="switch sensor noise off")
     parser.add_argument("--no-label", action="store_true", help="leave the per-sample 'state' column out")
+    parser.add_argument("--channels", default=",".join(CHANNELS), metavar="C1,C2,...",
+                        help="channels to publish: the command and at least one sensor, e.g. voltage,speed,torque "
+                             "for machines without a flow meter (default: all of " + ",".join(CHANNELS) + ")")
     add_bus_arguments(parser)
 
 
@@ -134,6 +137,7 @@ def degradation_paths(specs: Sequence[str], machines: Sequence[str]) -> dict[str
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Simulate and publish until ``--seconds`` of simulated time or ``stop``; returns 0."""
     n = _check(args)
+    channels = PLANT.select(args.channels)  # a bad --channels fails before the bus is opened
     states = [s.strip() for s in args.states.split(",") if s.strip()]
     for state in states:
         parse_state(state)
@@ -156,21 +160,21 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     # would catch up in one burst (a latency spike at start-up)
     PlantSimulator(parameters[:1], noise=not args.no_noise, seed=args.seed).step(np.zeros(1))
     command = FilteredNoiseCommand(len(mine), args.volts, seed=args.seed + 1)
-    keys = [key(args.fleet, m, "sensors") for _, m in mine]
-    encoder = FleetEncoder(CHANNELS, None if args.no_label else labels)
-    samples = dropped = 0
+    samples = 0
     depth = int(math.ceil(args.history / args.chunk))
     history = ChunkHistory(depth) if depth else None
     with open_session(settings_from_args(args)) as session, \
             (HistoryServer(session, key_expr(args.fleet), history) if history else nullcontext()):
         publisher = Publisher(session, express=args.express)
+        fleet = FleetPublisher(publisher, args.fleet, [m for _, m in mine], channels,
+                               None if args.no_label else labels, history, args.drop_every)
         reporter = StatusReporter(session, args.fleet, NAME, lambda: {"messages_out": publisher.messages_out},
                                   machines=[m for _, m in mine] if args.machine_tokens else ())
         steps = SimulationThread(sim, command, n, args.seconds, stop, wear=wear)
         publish_cpu_s = 0.0
         try:
             reporter.start()
-            if args.wait_subscribers > 0 and not publisher.wait_for_subscribers(keys, args.wait_subscribers):
+            if args.wait_subscribers > 0 and not publisher.wait_for_subscribers(fleet.keys, args.wait_subscribers):
                 event(log, "no subscriber on some keys; publishing anyway", logging.WARNING,
                       waited_s=args.wait_subscribers)
             reporter.status = "running"
@@ -178,21 +182,11 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             wall0, cpu0 = time.monotonic(), time.thread_time()
             steps.start()
             for out, end_time in steps:
-                # encode the whole step first, then publish back to back (~1.4 µs per put): the
-                # publish times of a burst stay close together instead of spreading over the encoding
-                if wear is not None:  # a wearing machine's label follows the level its path has reached
-                    encoder.relabel(wear.states(float(out["t"][0, 0]), labels))
-                payloads = encoder.encode(out["t"], out)
-                if history is not None:
-                    sent = time.time_ns()
-                    for k, start, payload in zip(keys, out["t"][:, 0].tolist(), payloads):
-                        history.add(k, start, payload, sent)
-                for k, payload in zip(keys, payloads):
-                    if args.drop_every and (publisher.messages_out + dropped + 1) % args.drop_every == 0:
-                        dropped += 1  # fault injection (--drop-every): in the history, not on the bus
-                        continue
-                    publisher.put_payload(k, payload)
-                samples += n * len(keys)
+                if wear is not None and not args.no_label:  # a wearing machine's label follows its path's level
+                    fleet.publish(out, wear.states(float(out["t"][0, 0]), labels))
+                else:
+                    fleet.publish(out)
+                samples += n * len(fleet.keys)
                 if math.isfinite(args.speed):
                     ahead = wall0 + end_time / args.speed - time.monotonic()
                     if ahead > 0:
@@ -205,7 +199,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             steps.close()
             reporter.stop()
             publisher.close()
-    event(log, "plant stopped", messages=publisher.messages_out, dropped_on_purpose=dropped, samples=samples,
+    event(log, "plant stopped", messages=publisher.messages_out, dropped_on_purpose=fleet.dropped, samples=samples,
           served_from_history=history.served if history else 0, simulated_s=round(sim.time, 3),
           cpu_simulation_s=round(steps.cpu_s, 2), cpu_publish_s=round(publish_cpu_s, 2))
     return 0

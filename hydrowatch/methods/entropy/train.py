@@ -2,7 +2,8 @@
 
 Wiring only, the maths lives in :mod:`hydrowatch.sysid` and :mod:`hydrowatch.health`:
 
-1. the reference models (Box-Jenkins or NARX, one per sensor) are fitted on the healthy state's
+1. the reference models (Box-Jenkins or NARX, one per sensor every recording has,
+   :func:`~hydrowatch.methods.base.shared_sensors`) are fitted on the healthy state's
    reference part of the data plan (:mod:`hydrowatch.health.plan`, section 6.3);
 2. their one-step prediction errors (Eq. 5.1) are computed on every state's data;
 3. each state's base part gives its base distributions, its classifier part the windows whose
@@ -14,7 +15,7 @@ Wiring only, the maths lives in :mod:`hydrowatch.sysid` and :mod:`hydrowatch.hea
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,7 +26,7 @@ from hydrowatch.health.features import RelativeEntropyFeatures
 from hydrowatch.health.model import HealthModel
 from hydrowatch.health.plan import split_state
 from hydrowatch.log import event, get_logger
-from hydrowatch.methods.base import HEALTHY, data_summary, ordered_states
+from hydrowatch.methods.base import HEALTHY, data_summary, ordered_states, shared_sensors
 from hydrowatch.methods.entropy.reference import SensorReference
 from hydrowatch.recording import INPUT, SENSORS, Recording
 from hydrowatch.sysid.correlation import autocorrelation, confidence_bound, cross_correlation
@@ -39,8 +40,10 @@ def _longest(runs: list[Recording]) -> Recording:
     return max(runs, key=len)
 
 
-def fit_references(healthy: Recording, settings: TrainingSettings) -> dict[str, SensorReference]:
-    """Reference model of every sensor on the healthy reference part (first ``plan.reference_samples``)."""
+def fit_references(healthy: Recording, settings: TrainingSettings,
+                   sensors: Sequence[str] = SENSORS) -> dict[str, SensorReference]:
+    """Reference model of every sensor of ``sensors`` on the healthy reference part (first
+    ``plan.reference_samples``)."""
     n = settings.plan.reference_samples
     if len(healthy) < n:
         raise DataError(
@@ -50,7 +53,7 @@ def fit_references(healthy: Recording, settings: TrainingSettings) -> dict[str, 
         )
     u = healthy[INPUT][:n]
     refs = {}
-    for sensor in SENSORS:
+    for sensor in sensors:
         t0 = time.perf_counter()
         refs[sensor] = SensorReference(kind=settings.reference, sensor=sensor,
                                        params=settings.reference_params()).fit(u, healthy[sensor][:n])
@@ -80,7 +83,8 @@ def fit_entropy(grouped: Mapping[str, list[Recording]],
     """
     start = time.perf_counter()
     states = ordered_states(list(grouped))
-    refs = fit_references(_longest(list(grouped[HEALTHY])), settings)
+    sensors = shared_sensors(grouped)
+    refs = fit_references(_longest(list(grouped[HEALTHY])), settings, sensors)
     plan = settings.plan
     base: dict[str, np.ndarray] = {}
     windows: dict[str, np.ndarray] = {}
@@ -96,10 +100,10 @@ def fit_entropy(grouped: Mapping[str, list[Recording]],
         base[state] = part[np.all(np.isfinite(part), axis=1)]
         windows[state] = errors[split.classifier]
         if state == HEALTHY:
-            correlations = _correlations(runs[0][INPUT][split.base], part)
+            correlations = _correlations(runs[0][INPUT][split.base], part, sensors)
     features = RelativeEntropyFeatures(distribution=settings.distribution, window=plan.window, hop=plan.hop)
     classifier = HealthClassifier(hidden=settings.hidden, random_state=settings.seed)
-    health = HealthModel(features=features, classifier=classifier).fit(base, windows, SENSORS)
+    health = HealthModel(features=features, classifier=classifier).fit(base, windows, sensors)
     entropies = {s: health.features_.window_entropies(windows[s]) for s in states}
     evaluation = _evaluate(health)
     reference = {s: {"nrmse_one_step": r.nrmse_one_step_, "summary": r.summary(), "correlations": correlations[s]}
@@ -107,7 +111,7 @@ def fit_entropy(grouped: Mapping[str, list[Recording]],
     event(_log, "trained", reference=settings.reference, accuracy=evaluation["test_accuracy"],
           seconds=round(time.perf_counter() - start, 1))
     manifest = {
-        "method": "entropy", "reference": settings.reference, "states": states, "sensors": list(SENSORS),
+        "method": "entropy", "reference": settings.reference, "states": states, "sensors": list(sensors),
         "window": plan.window, "hop": plan.hop, "warmup": max(r.warmup_ for r in refs.values()),
         "settings": settings.to_dict(), "data": data_summary(grouped, states),
         "metrics": {"test_accuracy": evaluation["test_accuracy"],
@@ -117,11 +121,13 @@ def fit_entropy(grouped: Mapping[str, list[Recording]],
                           "reference": reference}
 
 
-def _correlations(u: np.ndarray, errors: np.ndarray, max_lag: int = 20) -> dict[str, dict[str, Any]]:
-    """Residual autocorrelation (Eq. 4.22) and input cross-correlation (Eq. 4.23) of each sensor's errors."""
+def _correlations(u: np.ndarray, errors: np.ndarray, sensors: Sequence[str],
+                  max_lag: int = 20) -> dict[str, dict[str, Any]]:
+    """Residual autocorrelation (Eq. 4.22) and input cross-correlation (Eq. 4.23) of each sensor's errors
+    (columns in ``sensors`` order)."""
     ok = np.all(np.isfinite(errors), axis=1)
     out = {}
-    for i, sensor in enumerate(SENSORS):
+    for i, sensor in enumerate(sensors):
         e = errors[ok, i]
         acf, ccf = autocorrelation(e, max_lag), cross_correlation(u[ok], e, max_lag)
         bound = confidence_bound(e.size)

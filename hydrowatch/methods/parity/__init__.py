@@ -21,7 +21,7 @@ import numpy as np
 from hydrowatch.condition import ConditionModel, windows_from_recording
 from hydrowatch.condition.degradation import features_degradation
 from hydrowatch.condition.stream import POOLED_WINDOWS
-from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores
+from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores, check_channels
 from hydrowatch.methods.parity.online import ParityJudge
 from hydrowatch.recording import Recording
 
@@ -130,11 +130,14 @@ class ParityMethod(HealthMethod):
         CommissioningError
             When the recordings cannot commission the unit (too short, a command that never loads the parts, a
             fault already present, no temperature although the model reads it).
+        DataError
+            When a recording lacks a sensor the model reads (naming it).
         """
         from hydrowatch.condition.commission import CommissioningError, commission
 
         parts = []
         for rec in recordings:
+            check_channels(self, rec)  # a sensor the model reads, missing: named
             if self.temperature and "temperature" not in rec.channels:
                 raise CommissioningError("the recording must carry 'temperature': the model was trained with it. "
                                          f"Got channels {sorted(rec.channels)}.",

@@ -10,7 +10,8 @@ windows (one :class:`~hydrowatch.condition.stream.ConditionStream` per machine, 
 evidence (as :class:`ConditionStream` skips invalid windows); the oil temperature coming or going
 (its boxes differ) starts the pool again. A chunk without the temperature, for a bundle that reads
 it, has it unknown (NaN, not a break: the leak boxes widened by the oil's range,
-:mod:`hydrowatch.condition.oil`).
+:mod:`hydrowatch.condition.oil`). A sensor the model does not read (trained on a subset) is NaN when a
+chunk lacks it, never a break: the relations fill it.
 
 Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
 """
@@ -62,7 +63,9 @@ class ParityJudge:
             raise ParameterError(f"smoothing must be an integer >= 1. Got {smoothing!r}; 1 judges each window alone.")
         self.model, self.window, self.hop = model, window, hop
         self.columns = list(WINDOW_CHANNELS)
-        self.defaults: dict[str, float] = {}
+        # the window layout keeps every sensor's column; one the model does not read may be absent (NaN)
+        self.defaults: dict[str, float] = {c: float("nan") for c in WINDOW_CHANNELS[1:]
+                                           if c not in model.features_.sensors}
         if temperature:
             self.columns.append(TEMPERATURE)
             self.defaults[TEMPERATURE] = UNKNOWN_TEMPERATURE

@@ -3,7 +3,9 @@
 Wiring only, the maths lives in :mod:`hydrowatch.condition` (docs/command-invariance.md):
 
 1. each state's recordings are cut into raw windows of voltage, flow, speed, torque (and the oil
-   temperature when every recording has it), ``plan.window`` samples every ``plan.hop``; the first
+   temperature when every recording has it), ``plan.window`` samples every ``plan.hop``; the relations
+   read the sensors every recording has (:func:`~hydrowatch.methods.base.shared_sensors`; a sensor they
+   lack is NaN in the windows and filled from the nominal relations, docs/command-invariance.md); the first
    85 % of every run fits, the last :data:`TEST_FRACTION` is held out (whole windows, no overlap
    with the fitted part);
 2. :class:`~hydrowatch.condition.ConditionModel` fits each state's severity level and box, the
@@ -28,7 +30,7 @@ from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
 from hydrowatch.log import event, get_logger
-from hydrowatch.methods.base import data_summary, ordered_states
+from hydrowatch.methods.base import data_summary, ordered_states, shared_sensors
 from hydrowatch.recording import Recording
 from hydrowatch.verdict import UNKNOWN
 
@@ -84,7 +86,7 @@ def fit_parity(grouped: Mapping[str, list[Recording]],
         if fit[state].shape[0] < 2:
             raise DataError(f"state '{state}' must have at least 2 windows of {plan.window} samples to fit. Got "
                             f"{fit[state].shape[0]}. Record longer.")
-    features = ConditionFeatures(window=plan.window, hop=plan.window)
+    features = ConditionFeatures(window=plan.window, hop=plan.window, sensors=tuple(shared_sensors(grouped)))
     model = ConditionModel(features=features).fit(fit)
     scores = {s: model.features_.transform(test[s]) if test[s].shape[0] else
               np.empty((0, len(model.features_.feature_names_))) for s in states}

@@ -19,8 +19,8 @@ import numpy as np
 
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
 from hydrowatch.health.windows import sliding_windows, window_starts
-from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores, data_summary, ordered_states
-from hydrowatch.recording import INPUT, SENSORS, Recording
+from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores, data_summary, ordered_states, shared_sensors
+from hydrowatch.recording import INPUT, Recording
 from hydrowatch.verdict import INVALID, Verdict
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ class StatsMethod(HealthMethod):
         from sklearn.linear_model import LogisticRegression
 
         states, window = ordered_states(list(grouped)), settings.plan.window
-        channels = [INPUT, *[s for s in SENSORS if all(s in r.channels for g in grouped.values() for r in g)]]
+        channels = [INPUT, *shared_sensors(grouped)]
         fit: dict[str, list[np.ndarray]] = {s: [] for s in states}
         test: dict[str, list[np.ndarray]] = {s: [] for s in states}
         for s in states:
