@@ -299,8 +299,8 @@ def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray
     delivers less then reaches its limit on a later day where the model expects spare capacity, and reads healthy
     windows at high demand as a pump leak or ``unknown``. The recording does bound the capacity from below, and a
     unit with more spare capacity than that bound loses nothing on commands like the commissioning one (it never
-    draws more). Measured on seed 2030 (7 states, 300 s duty cycles, 7 units that left Dp to its prior; the
-    population chose the rule): the worst unit (true capacity 0.78 × the trained unit's, kept at 1.0, capped at 0.82)
+    draws more). Measured on seed 2030 (7 states, 8 recordings that left Dp to its prior; the population chose
+    the rule): the worst unit (true capacity 0.78 × the trained unit's, kept at 1.0, capped at 0.82)
     went from 72.1 to 95.0 % right on a later day's duty cycle, its healthy windows from 65 to 100 %
     (docs/unseen-units.md).
     """
