@@ -53,8 +53,8 @@ def train_and_track(
             result.evaluation["checks"] = checks
         write_training_artifacts(result, folder)
         logged = log_training(
-            params=settings.to_dict(), metrics={**run_metrics(result), **accuracy_metrics(checks)}, bundle_dir=out,
-            report_dir=folder, tracking=tracking, experiment=experiment,
+            params=settings.to_dict(), metrics={**run_metrics(result), **accuracy_metrics(checks)},
+            bundle=result.bundle, bundle_dir=out, report_dir=folder, tracking=tracking, experiment=experiment,
             run_name=f"{settings.name}-{result.bundle.version[7:]}", model_name=model_name, alias=alias,
             tags={"method": settings.method, "reference": settings.name, "bundle_version": result.bundle.version},
             started_s=started,

@@ -1,31 +1,37 @@
 """MLflow tracking of training runs and the model registry (../shared/docs/stack-notes.md, "MLflow").
 
-One run per trained bundle: parameters (reference model orders or delay lines and neurons, data
-plan, window), metrics (one-step NRMSE per sensor, Q/S or γ, test accuracy, per-class recall),
-artifacts (the bundle, the report plots and tables) and a registered model version pointing at
-the bundle, with an alias (``champion``) that the scorer can follow. The tracking URI is always
+One run per trained bundle, spanning its training: parameters (reference model orders or delay lines and neurons,
+data plan, window), metrics (one-step NRMSE per sensor, Q/S or γ, test accuracy, per-class recall, the accuracy
+checks), the report plots and tables as artifacts, and the bundle as an MLflow model of the run (pyfunc,
+:mod:`hydrowatch.training.mlflow_model`); a registered model version points at that model, with an alias
+(``champion``) that the scorer can follow. The tracking URI is always
 explicit: ``--tracking-uri``, else ``MLFLOW_TRACKING_URI``, else ``sqlite:///<cwd>/mlruns/mlflow.db``
 with artifacts next to the database (``mlruns/artifacts``).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.log import event, get_logger
+from hydrowatch.training.mlflow_model import bundle_folder, log_bundle_model
 from hydrowatch.training.options import (
     DEFAULT_ALIAS,
     DEFAULT_EXPERIMENT,
     DEFAULT_MODEL_NAME,
     DEFAULT_SCORING_EXPERIMENT,
 )
+
+if TYPE_CHECKING:
+    from hydrowatch.training.bundle import ModelBundle
 
 _log = get_logger(__name__)
 
@@ -86,6 +92,7 @@ def log_training(
     *,
     params: dict[str, Any],
     metrics: dict[str, float],
+    bundle: ModelBundle,
     bundle_dir: str | Path,
     report_dir: str | Path | None = None,
     tracking: str | None = None,
@@ -96,7 +103,8 @@ def log_training(
     tags: dict[str, str] | None = None,
     started_s: float | None = None,
 ) -> dict[str, Any]:
-    """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``model_uri``, ``version``.
+    """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``experiment``,
+    ``model_uri`` (registry), ``version`` and ``model_id`` (the logged model).
 
     ``started_s`` (s since the Unix epoch): when the training began; the run then spans the training, so MLflow shows
     its duration (default: the run starts when logging does).
@@ -105,8 +113,9 @@ def log_training(
     ----------
     params, metrics : dict
         Logged in one batch each (non-finite metrics are left out).
-    bundle_dir : path
-        The saved :class:`~hydrowatch.training.bundle.ModelBundle`; logged under ``bundle/``.
+    bundle, bundle_dir : ModelBundle, path
+        The bundle and the folder it is saved in; logged as the run's MLflow model, named ``run_name``
+        (:func:`~hydrowatch.training.mlflow_model.log_bundle_model`), which the registered version points at.
     report_dir : path, optional
         Plots and tables; logged under ``report/``.
     model_name : str or None
@@ -126,25 +135,38 @@ def log_training(
         mlflow.log_metrics(_finite(metrics))
         if tags:
             mlflow.set_tags(tags)
-        mlflow.log_artifacts(str(bundle_dir), "bundle")
+        model = log_bundle_model(bundle, bundle_dir, name=run_name, tags=tags)
         if report_dir is not None:
             mlflow.log_artifacts(str(report_dir), "report")
         run_id = run.info.run_id
-        source = f"{run.info.artifact_uri}/bundle"
     out: dict[str, Any] = {"run_id": run_id, "tracking_uri": uri, "experiment": experiment, "model_uri": None,
-                           "version": None}
+                           "version": None, "model_id": model.model_id}
     if model_name:
         try:
             client.get_registered_model(model_name)
         except Exception:  # noqa: BLE001 - MLflow raises its own RestException when missing
             client.create_registered_model(model_name)
-        version = client.create_model_version(model_name, source=source, run_id=run_id, tags=tags or {})
+        version = register_version(client, model_name, model, run_id, tags or {})
         if alias:
             client.set_registered_model_alias(model_name, alias, version.version)
         out["version"] = str(version.version)
         out["model_uri"] = f"models:/{model_name}@{alias}" if alias else f"models:/{model_name}/{version.version}"
-    event(_log, "training run logged", run_id=run_id, model=out["model_uri"], uri=uri)
+    event(_log, "training run logged", run_id=run_id, model=out["model_uri"], model_id=model.model_id, uri=uri)
     return out
+
+
+def register_version(client: Any, model_name: str, model: Any, run_id: str, tags: dict[str, str]) -> Any:
+    """A new version of ``model_name`` whose source is the logged model (``models:/<model_id>``), and the logged
+    model's tag ``mlflow.modelVersions`` listing it, as ``mlflow.register_model`` does (the model's page shows its
+    registered versions from that tag); quietly (``register_model`` prints to stderr)."""
+    from mlflow.utils.mlflow_tags import MLFLOW_MODEL_VERSIONS
+
+    version = client.create_model_version(model_name, source=model.model_uri, run_id=run_id, tags=tags,
+                                          model_id=model.model_id)
+    listed = json.loads(client.get_logged_model(model.model_id).tags.get(MLFLOW_MODEL_VERSIONS) or "[]")
+    listed.append({"name": model_name, "version": str(version.version)})
+    client.set_logged_model_tags(model.model_id, {MLFLOW_MODEL_VERSIONS: json.dumps(listed)})
+    return version
 
 
 METRICS_PER_BATCH = 1000
@@ -208,11 +230,14 @@ def resolve_version(uri: str, tracking: str | None = None) -> tuple[str, str]:
 
 
 def download_registered(uri: str, tracking: str | None = None) -> tuple[Path, str]:
-    """Download the bundle a registry URI points at; returns (local folder, ``NAME/vVERSION``)."""
+    """Download the bundle a registry URI points at; returns (local folder, ``NAME/vVERSION``).
+
+    A version registered since issue 16 is an MLflow model (source ``models:/<model_id>``) holding the bundle as
+    its ``bundle`` artifact; one registered before is the bundle folder itself (source ``…/artifacts/bundle``)."""
     import mlflow
 
     name, _, _ = parse_model_uri(uri)
     version, source = resolve_version(uri, tracking)
     folder = Path(tempfile.mkdtemp(prefix="hydrowatch-model-"))
-    local = mlflow.artifacts.download_artifacts(artifact_uri=source, dst_path=str(folder))
-    return Path(local), f"{name}/v{version}"
+    local = Path(mlflow.artifacts.download_artifacts(artifact_uri=source, dst_path=str(folder)))
+    return (bundle_folder(local) if (local / "MLmodel").exists() else local), f"{name}/v{version}"
