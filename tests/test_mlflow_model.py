@@ -83,6 +83,14 @@ def test_the_checks_are_run_metrics(trained: dict) -> None:
         assert metrics[f"windows.{command}"] == 4 * len(STATES)  # 20 s per state: four 5 s windows
         assert 0.5 <= metrics[f"recall_min.{command}"] <= metrics[f"accuracy.{command}"] + 1e-12
     assert metrics["test_accuracy"] == trained["summary"]["test_accuracy"] >= 0.9
+    # the experiment's runs-table view shows them as columns (MLflow 3.17 shows no metric until one is chosen)
+    experiment = trained["client"].get_experiment_by_name("test")
+    view = json.loads(experiment.tags["mlflow.sharedViewState.checks"])
+    assert view["selectedColumns"] == ["attributes.`Models`", "metrics.`test_accuracy`", "metrics.`recall_min`",
+                                       "metrics.`accuracy.training`", "metrics.`accuracy.duty_cycle`",
+                                       "metrics.`accuracy.narrow_range`", "metrics.`train_seconds`"]
+    assert trained["summary"]["runs_url"] == (f"http://127.0.0.1:5000/#/experiments/{experiment.experiment_id}/runs"
+                                              "?workflowType=machine_learning&viewStateShareKey=checks")
     assert metrics["recall_min"] == min(trained["summary"]["per_class_recall"].values())
     assert metrics["train_seconds"] > 0
 

@@ -17,6 +17,7 @@ import math
 import os
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -67,8 +68,31 @@ def _client(uri: str) -> Any:
 
 
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
-"""The experiment tag MLflow's UI reads to open an experiment in its model-training view; without it MLflow 3
-infers a GenAI experiment and opens traces and tokens (issue 16)."""
+"""The experiment tag that MLflow 3 UIs before the GenAI/Model-training switch read to open an experiment in the
+model-training view rather than the GenAI one (traces, tokens). MLflow 3.17's UI follows its own switch instead,
+remembered in the browser (default GenAI) or given in the address: :func:`runs_table_url` (issue 16)."""
+RUNS_VIEW = "checks"
+"""Share key of the runs-table view written to a training experiment (:func:`set_runs_view`)."""
+SHARED_VIEW_TAG = "mlflow.sharedViewState."
+"""Prefix of the experiment tags that hold MLflow's shared runs-table views (the UI's "share view"; the address
+names one with ``viewStateShareKey``)."""
+MLFLOW_UI = "http://127.0.0.1:5000"
+"""Where ``mlflow ui`` serves by default: the runs table's address for a store that is not a server."""
+
+
+def set_runs_view(client: Any, experiment_id: str, metrics: Sequence[str]) -> None:
+    """Write the runs-table view :data:`RUNS_VIEW` to the experiment: columns the registered model and ``metrics``
+    (MLflow 3.17 shows no metric column until one is chosen), newest run first; :func:`runs_table_url` opens it."""
+    columns = ["attributes.`Models`", *(f"metrics.`{m}`" for m in metrics)]
+    view = {"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False}
+    client.set_experiment_tag(experiment_id, SHARED_VIEW_TAG + RUNS_VIEW, json.dumps(view))
+
+
+def runs_table_url(uri: str, experiment_id: str) -> str:
+    """The address of an experiment's runs table in MLflow's UI, in the model-training view, with the columns of
+    :func:`set_runs_view`: on the tracking server for an ``http(s)`` URI, else on :data:`MLFLOW_UI`."""
+    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else MLFLOW_UI
+    return f"{base}/#/experiments/{experiment_id}/runs?workflowType=machine_learning&viewStateShareKey={RUNS_VIEW}"
 
 
 def _experiment_id(client: Any, name: str, uri: str) -> str:
@@ -102,12 +126,14 @@ def log_training(
     alias: str | None = DEFAULT_ALIAS,
     tags: dict[str, str] | None = None,
     started_s: float | None = None,
+    columns: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``experiment``,
-    ``model_uri`` (registry), ``version`` and ``model_id`` (the logged model).
+    ``model_uri`` (registry), ``version``, ``model_id`` (the logged model) and ``runs_url`` (:func:`runs_table_url`).
 
     ``started_s`` (s since the Unix epoch): when the training began; the run then spans the training, so MLflow shows
-    its duration (default: the run starts when logging does).
+    its duration (default: the run starts when logging does). ``columns``: metrics the experiment's runs-table view
+    shows (:func:`set_runs_view`; empty: leave the view alone).
 
     Parameters
     ----------
@@ -129,6 +155,8 @@ def log_training(
     client = _client(uri)
     experiment_id = _experiment_id(client, experiment, uri)
     start_ms = int((time.time() if started_s is None else started_s) * 1000)
+    if columns:
+        set_runs_view(client, experiment_id, columns)
     begun = client.create_run(experiment_id, start_time=start_ms, run_name=run_name).info.run_id
     with mlflow.start_run(run_id=begun) as run:
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
@@ -140,7 +168,7 @@ def log_training(
             mlflow.log_artifacts(str(report_dir), "report")
         run_id = run.info.run_id
     out: dict[str, Any] = {"run_id": run_id, "tracking_uri": uri, "experiment": experiment, "model_uri": None,
-                           "version": None, "model_id": model.model_id}
+                           "version": None, "model_id": model.model_id, "runs_url": runs_table_url(uri, experiment_id)}
     if model_name:
         try:
             client.get_registered_model(model_name)
