@@ -7,6 +7,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.recording import Recording
 from hydrowatch.training.bundle import load_bundle
+from hydrowatch.web.browser import Chromium, find_chromium
 
 STATES = ["healthy", "load_alert", "pump_leak_warning", "motor_leak_alert"]
 
@@ -144,3 +147,54 @@ def test_a_version_registered_before_as_a_bundle_folder_still_loads(trained: dic
     assert bundle.version == f"hydrowatch/v{old.version}" and bundle.method == "parity"
     current = load_bundle("models:/hydrowatch@champion", trained["uri"])
     assert current.version == "hydrowatch/v1" and current.states == bundle.states
+
+
+@pytest.fixture
+def mlflow_server(trained: dict) -> Iterator[str]:
+    """``mlflow server`` on the test's store, on loopback; its address."""
+    import subprocess
+    import sys
+    import urllib.request
+
+    from hydrowatch.bus import free_port
+
+    address = f"http://127.0.0.1:{free_port()}"
+    server = subprocess.Popen([sys.executable, "-m", "mlflow", "server", "--backend-store-uri", trained["uri"],
+                               "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--workers", "1"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                with urllib.request.urlopen(f"{address}/health", timeout=2) as answer:
+                    if answer.status == 200:
+                        break
+            except OSError:
+                if server.poll() is not None or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        yield address
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+@pytest.mark.skipif(find_chromium() is None, reason="no Chromium installed (apt-get install chromium; `make test` "
+                                                     "does it where apt is available)")
+def test_mlflow_ui_shows_the_runs_model_and_checks_in_the_training_view(trained: dict, mlflow_server: str) -> None:
+    """The address ``train`` prints opens MLflow's own UI in the model-training view, with the registered model and
+    the checks as columns of the runs table (MLflow 3.17 in headless Chromium)."""
+    from hydrowatch.training.tracking import runs_table_url
+
+    experiment = trained["client"].get_experiment_by_name("test").experiment_id
+    with Chromium(width=1600, height=700) as browser:
+        browser.navigate(runs_table_url(mlflow_server, experiment))
+        headers = "Array.from(document.querySelectorAll('[role=columnheader]')).map(e => e.innerText.trim())"
+        seen = browser.wait_for(f"(h => h.includes('accuracy.duty_cycle') && h)({headers})", timeout=60)
+        assert {"Models", "accuracy.training", "accuracy.narrow_range", "test_accuracy", "recall_min"} <= set(seen)
+        grid = browser.wait_for("(t => t.includes('hydrowatch') && t)(document.querySelector('[role=grid]')"
+                                "?.innerText || '')", timeout=30)
+        run = trained["client"].get_run(trained["summary"]["run_id"])
+        assert run.info.run_name in grid and "v1" in grid  # the run, its registered model and version
+        page = browser.evaluate("document.body.innerText")
+        assert "Sessions" not in page and "Judges" not in page  # the GenAI view's navigation is not there
