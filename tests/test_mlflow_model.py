@@ -151,7 +151,8 @@ def test_a_version_registered_before_as_a_bundle_folder_still_loads(trained: dic
 
 @pytest.fixture
 def mlflow_server(trained: dict) -> Iterator[str]:
-    """``mlflow server`` on the test's store, on loopback; its address."""
+    """``mlflow server`` on the test's store, on loopback, artifacts of new experiments proxied into the test's
+    folder; its address."""
     import subprocess
     import sys
     import urllib.request
@@ -160,7 +161,8 @@ def mlflow_server(trained: dict) -> Iterator[str]:
 
     address = f"http://127.0.0.1:{free_port()}"
     server = subprocess.Popen([sys.executable, "-m", "mlflow", "server", "--backend-store-uri", trained["uri"],
-                               "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--workers", "1"],
+                               "--artifacts-destination", str(trained["root"] / "served"), "--host", "127.0.0.1",
+                               "--port", address.rsplit(":", 1)[1], "--workers", "1"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120
@@ -177,6 +179,24 @@ def mlflow_server(trained: dict) -> Iterator[str]:
     finally:
         server.terminate()
         server.wait(timeout=30)
+
+
+def test_over_http_the_json_stays_clean_and_the_registered_model_loads(trained: dict, mlflow_server: str,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Through ``mlflow server`` (artifacts proxied, ``mlflow-artifacts:/``): MLflow's "View run" lines do not mix
+    into the JSON on stdout, and the registered version's model downloads and scores."""
+    capsys.readouterr()
+    assert main(["train", "--data", str(trained["root"] / "data"), "--out", str(trained["root"] / "http"),
+                 "--method", "parity", "--tracking-uri", mlflow_server, "--experiment", "http", "--json"]) == 0
+    [summary] = [json.loads(line) for line in capsys.readouterr().out.splitlines()]  # only JSON on stdout
+    version = summary["registered_version"]
+    assert summary["runs_url"].startswith(f"{mlflow_server}/#/experiments/")
+    assert main(["score", "--model", f"models:/hydrowatch/{version}", "--tracking-uri", mlflow_server,
+                 "--data", str(trained["test"] / "load_alert.parquet"), "--json"]) == 0
+    scored = json.loads(capsys.readouterr().out)
+    assert scored["summary"]["model_version"] == f"hydrowatch/v{version}" and scored["summary"]["accuracy"] >= 0.9
+    source = trained["client"].get_model_version("hydrowatch", version).source
+    assert source.startswith("models:/m-")
 
 
 @pytest.mark.skipif(find_chromium() is None, reason="no Chromium installed (apt-get install chromium; `make test` "
