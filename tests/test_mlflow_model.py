@@ -149,7 +149,7 @@ def test_a_version_registered_before_as_a_bundle_folder_still_loads(trained: dic
     assert current.version == "hydrowatch/v1" and current.states == bundle.states
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def mlflow_server(trained: dict) -> Iterator[str]:
     """``mlflow server`` on the test's store, on loopback, artifacts of new experiments proxied into the test's
     folder; its address."""
