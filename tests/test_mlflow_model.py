@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 
 from hydrowatch.cli import main
+from hydrowatch.errors import DataError
 from hydrowatch.io import write_recording
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.fleet import simulate_states
@@ -125,13 +126,17 @@ def test_registry_model_scores_through_hydrowatch_and_pyfunc_alike(trained: dict
     assert set(alone["machine"]) == {""} and len(alone) == 14 and alone["state"].eq("load_alert").mean() >= 0.9
 
 
-def test_model_input_without_a_sensor_is_refused(trained: dict) -> None:
+def test_model_input_without_a_sensor_or_with_a_gap_is_refused_naming_it(trained: dict) -> None:
     import mlflow
     from mlflow.exceptions import MlflowException
 
     model = mlflow.pyfunc.load_model("models:/hydrowatch@champion")
     with pytest.raises(MlflowException, match="torque"):
         model.predict(samples(trained["duty"][0]).drop(columns=["torque"]))
+    gap = samples(trained["duty"][0]).assign(machine="m7")
+    gap.loc[100, "flow"] = np.nan
+    with pytest.raises(DataError, match=r"model input machine m7: column 'flow' must have no NaN"):
+        model.predict(gap)
 
 
 def test_a_version_registered_before_as_a_bundle_folder_still_loads(trained: dict) -> None:
