@@ -1,11 +1,11 @@
 """``hydrowatch train``: fit a health model (parity or the study's entropy method); track in MLflow.
 
 Prints one JSON summary per trained bundle (version, method, states, NRMSE per sensor for the
-entropy method, test accuracy, per-class recall, MLflow run id and registered model URI, and with
-``--check-seconds`` the accuracy on other commands). ``--method both`` trains ``OUT/entropy`` and
-``OUT/parity`` as two runs to compare. The JSON goes out with ``--json`` or when stdout is not a
-terminal; on a terminal a short summary per bundle (:mod:`hydrowatch.report.console`). The work is
-:func:`hydrowatch.training.pipeline.train_each`.
+entropy method, test accuracy, per-class recall, MLflow run id, registered model URI and the address
+of the runs table in MLflow's UI, and with ``--check-seconds`` the accuracy on other commands).
+``--method both`` trains ``OUT/entropy`` and ``OUT/parity`` as two runs to compare. The JSON goes out
+with ``--json`` or when stdout is not a terminal; on a terminal a short summary per bundle
+(:mod:`hydrowatch.report.console`). The work is :func:`hydrowatch.training.pipeline.train_each`.
 """
 
 from __future__ import annotations
