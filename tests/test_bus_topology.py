@@ -37,8 +37,9 @@ def wait_until(condition, timeout: float, what: str, topology: Topology) -> None
 
 
 def registry(uri: str, name: str, alias: str) -> tuple[list[str], str | None, list[str]]:
-    """(registered versions in order, the version the alias points at, their sources) read over HTTP; nothing while
-    the server does not answer."""
+    """(registered versions in order, the version the alias points at, where their files are) read over HTTP;
+    nothing while the server does not answer. A version's source is its logged model (``models:/<model_id>``, issue
+    16); the files are the model's artifact location."""
     from mlflow import MlflowClient
 
     client = MlflowClient(tracking_uri=uri, registry_uri=uri)
@@ -50,7 +51,13 @@ def registry(uri: str, name: str, alias: str) -> tuple[list[str], str | None, li
         at = str(client.get_model_version_by_alias(name, alias).version)
     except Exception:  # noqa: BLE001 - no alias yet
         at = None
-    return sorted((str(v.version) for v in versions), key=int), at, [str(v.source) for v in versions]
+    sources = [str(v.source) for v in versions]
+    try:
+        stored = [client.get_logged_model(s.removeprefix("models:/")).artifact_location
+                  if s.startswith("models:/m-") else s for s in sources]
+    except Exception:  # noqa: BLE001 - went down meanwhile
+        return [], None, []
+    return sorted((str(v.version) for v in versions), key=int), at, stored
 
 
 @pytest.mark.slow

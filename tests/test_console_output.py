@@ -25,6 +25,7 @@ TRAINED = {
                                                                          "load_alert": 1.0},
     "test_windows": 210, "seconds": 12.34, "out": "model", "run_id": "5f1e2d", "tracking_uri": "sqlite:///mlruns/m.db",
     "model_uri": "models:/hydrowatch@champion", "registered_version": "3",
+    "runs_url": "http://127.0.0.1:5000/#/experiments/1/runs?workflowType=machine_learning&viewStateShareKey=checks",
     "checks": {"training": 1.0, "duty_cycle": 0.964, "narrow_range": 0.91},
 }
 SCORED = {
@@ -135,7 +136,8 @@ def test_json_is_unchanged_when_stdout_is_not_a_terminal_or_json_is_asked(
                "test accuracy 99.3 % on 210 windows; weakest recall load_warning 95.0 %",
                "accuracy on other commands: training 100.0 %, duty_cycle 96.4 %, narrow_range 91.0 %",
                "registered models:/hydrowatch@champion (version 3)", "next: hydrowatch score --model model",
-               "mlflow ui --backend-store-uri sqlite:///mlruns/m.db"]),
+               "mlflow ui --backend-store-uri sqlite:///mlruns/m.db, then open http://127.0.0.1:5000/#/experiments/1/"
+               "runs?workflowType=machine_learning&viewStateShareKey=checks"]),
     ("score", ["test/load_alert.parquet: 3 windows: healthy 1, load_alert 1, invalid 1; accuracy 50.0 %",
                "last verdict, window from 5.0 s: load_alert (p = 0.93)",
                "pump_leak: alert in 448.7 operating s after the last window (95 %: 401.2–512.0 s)",

@@ -70,8 +70,9 @@ def test_train_stats_writes_a_bundle_a_report_and_an_mlflow_run(stats: dict, tra
     assert run.data.params["method"] == "stats" and run.data.params["plan.window"] == "1000"
     assert run.data.tags["method"] == "stats" and run.info.run_name.startswith("stats-")
     assert run.data.metrics["test_accuracy"] == trained["test_accuracy"] and "recall.load_alert" in run.data.metrics
-    artifacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "bundle")}
-    assert "bundle/manifest.json" in artifacts and trained["model_uri"] == "models:/hydrowatch@champion"
+    model_id = run.outputs.model_outputs[0].model_id  # the bundle is the run's MLflow model (artifacts/bundle)
+    files = {a.path for a in mlflow.MlflowClient().list_logged_model_artifacts(model_id, "artifacts/bundle")}
+    assert "artifacts/bundle/manifest.json" in files and trained["model_uri"] == "models:/hydrowatch@champion"
 
 
 def test_score_stats_json_on_another_seed(stats: dict, trained: dict, capsys: pytest.CaptureFixture[str]) -> None:

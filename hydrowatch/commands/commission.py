@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
         logged = log_training(params={"machine": args.machine, "base_version": info["base_version"],
                                       "sources": ",".join(info["sources"])},
                               metrics={"seconds": unit["seconds"], "healthy_share": unit["healthy_share"]},
-                              bundle_dir=args.out, tracking=args.tracking_uri, experiment="hydrowatch-commissioning",
+                              bundle=bundle, bundle_dir=args.out, tracking=args.tracking_uri,
+                              experiment="hydrowatch-commissioning",
                               run_name=f"commission {args.machine}", model_name=args.register, alias=REGISTRY_ALIAS,
                               tags={"machine": args.machine, "kind": "commissioning"})
         info["model_uri"], info["run_id"] = logged["model_uri"], logged["run_id"]

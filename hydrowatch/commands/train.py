@@ -1,11 +1,11 @@
 """``hydrowatch train``: fit a health model (parity or the study's entropy method); track in MLflow.
 
 Prints one JSON summary per trained bundle (version, method, states, NRMSE per sensor for the
-entropy method, test accuracy, per-class recall, MLflow run id and registered model URI, and with
-``--check-seconds`` the accuracy on other commands). ``--method both`` trains ``OUT/entropy`` and
-``OUT/parity`` as two runs to compare. The JSON goes out with ``--json`` or when stdout is not a
-terminal; on a terminal a short summary per bundle (:mod:`hydrowatch.report.console`). The work is
-:func:`hydrowatch.training.pipeline.train_each`.
+entropy method, test accuracy, per-class recall, MLflow run id, registered model URI and the address
+of the runs table in MLflow's UI, and with ``--check-seconds`` the accuracy on other commands).
+``--method both`` trains ``OUT/entropy`` and ``OUT/parity`` as two runs to compare. The JSON goes out
+with ``--json`` or when stdout is not a terminal; on a terminal a short summary per bundle
+(:mod:`hydrowatch.report.console`). The work is :func:`hydrowatch.training.pipeline.train_each`.
 """
 
 from __future__ import annotations
@@ -37,14 +37,14 @@ def run(args: argparse.Namespace) -> int:
     from hydrowatch.report.console import json_output, train_next, train_text
     from hydrowatch.training.pipeline import train_each
 
-    as_json, tracking_uri = json_output(args.json), ""
+    as_json, tracking_uri, runs_url = json_output(args.json), "", None
     for summary in train_each(
         args.data, args.out, settings_list_from_args(args), report_dir=args.report, tracking=args.tracking_uri,
         experiment=args.experiment, model_name=None if args.no_register else args.model_name, alias=args.alias,
         check_seconds=args.check_seconds,
     ):
         print(json.dumps(summary) if as_json else train_text(summary), flush=True)
-        tracking_uri = summary["tracking_uri"]
+        tracking_uri, runs_url = summary["tracking_uri"], summary.get("runs_url")
     if not as_json:
-        print(train_next(str(args.out), tracking_uri))
+        print(train_next(str(args.out), tracking_uri, runs_url))
     return 0

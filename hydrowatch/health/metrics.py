@@ -8,7 +8,7 @@ accuracy and recall and get their own column when ``"unknown"`` is listed in ``l
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -54,6 +54,12 @@ def per_class_recall(
         mine = t == label
         out[label] = float(np.mean(p[mine] == label)) if mine.any() else float("nan")
     return out
+
+
+def weakest_recall(recall: Mapping[str, float]) -> float:
+    """The lowest of :func:`per_class_recall`'s values over the states that had windows (NaN when none had)."""
+    seen = [r for r in recall.values() if np.isfinite(r)]
+    return float(min(seen)) if seen else float("nan")
 
 
 def expected_calibration_error(probabilities: np.ndarray, y_true_index: np.ndarray, n_bins: int = 15) -> float:

@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.checks import check_channels, check_labels, check_state, check_time_base, check_unit
 from hydrowatch.io.codec import LABEL_FIELD, arrays_from_sensor_chunk, sensor_chunk_from_arrays
 from hydrowatch.io.mcap_io import METADATA_NAME, McapWriter, Recovery, iter_messages, topic
-from hydrowatch.io.tabular import read_csv, read_parquet, write_table
+from hydrowatch.io.tabular import Table, read_csv, read_parquet, table_from_arrow, write_table
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import SAMPLE_RATE_HZ, UNITS, Recording
 from hydrowatch.schemas import SCHEMA_VERSION
@@ -192,8 +193,21 @@ def read_recording(path: str | Path, *, machine: str | None = None, recover: boo
     else:
         table = read_csv(path) if suffix == ".csv" else read_parquet(path)
         t, channels, labels, meta = table.t, table.channels, table.labels, dict(table.meta)
+    return _checked(Table(t, channels, labels, meta), source, required)
+
+
+def recording_from_table(table: pa.Table, source: str, *, required: Sequence[str] | None = None) -> Recording:
+    """A checked recording from an Arrow table of samples in memory (columns as in a Parquet file: ``t`` [s], the
+    channels, an optional ``state``; other columns are left out), with the same checks as :func:`read_recording`;
+    ``source`` names the table in errors (the MLflow model's input, :mod:`hydrowatch.training.mlflow_model`)."""
+    return _checked(table_from_arrow(table, {}, source), source, required)
+
+
+def _checked(table: Table, source: str, required: Sequence[str] | None) -> Recording:
+    """The checks every read ends in: time base, channels, labels; ``meta["source"]`` set."""
+    t, labels, meta = table.t, table.labels, dict(table.meta)
     check_time_base(t, source)
-    channels = check_channels(t, channels, source, None if required is None else tuple(required))
+    channels = check_channels(t, table.channels, source, None if required is None else tuple(required))
     if meta.get("state") is not None:
         check_state(meta["state"], source, " in the file metadata")
     meta.pop("labels", None)

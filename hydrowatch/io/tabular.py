@@ -81,7 +81,7 @@ def as_float(name: str, column: pa.ChunkedArray, source: str) -> np.ndarray:
     raise DataError(f"column '{name}' must be numeric. Got type {column.type}.", source)
 
 
-def _table_from_arrow(table: pa.Table, column_units: Mapping[str, str | None], source: str) -> Table:
+def table_from_arrow(table: pa.Table, column_units: Mapping[str, str | None], source: str) -> Table:
     """Split an Arrow table into time, channels and labels; check types and units."""
     unknown = [n for n in table.column_names if n not in UNITS and n != LABEL_FIELD]
     if unknown:
@@ -129,7 +129,7 @@ def read_csv(path: str | Path) -> Table:
         raise DataError(
             f"header must name every column. Got {len(names)} names for {table.num_columns} columns.", source
         )
-    return _table_from_arrow(table.rename_columns(names), units, source)
+    return table_from_arrow(table.rename_columns(names), units, source)
 
 
 def read_parquet(path: str | Path) -> Table:
@@ -140,7 +140,7 @@ def read_parquet(path: str | Path) -> Table:
     except (OSError, pa.ArrowInvalid) as exc:
         raise DataError(f"file must be a readable Parquet file. Got: {str(exc).splitlines()[0]}.", source) from None
     units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() or None for f in table.schema}
-    out = _table_from_arrow(table, units, source)
+    out = table_from_arrow(table, units, source)
     raw = (table.schema.metadata or {}).get(META_KEY)
     if raw is not None:
         try:

@@ -60,10 +60,14 @@ def train_text(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def train_next(out: str, tracking_uri: str) -> str:
-    """The closing line of ``hydrowatch train``: what to run next."""
-    return (f"next: hydrowatch score --model {out} --data RECORDINGS; the runs: mlflow ui --backend-store-uri "
-            f"{tracking_uri}")
+def train_next(out: str, tracking_uri: str, runs_url: str | None = None) -> str:
+    """The closing line of ``hydrowatch train``: what to run next; ``runs_url``: the runs table to open (a server's
+    address, or ``mlflow ui``'s once started)."""
+    served = tracking_uri.startswith(("http://", "https://"))
+    runs = "" if served else f"mlflow ui --backend-store-uri {tracking_uri}"
+    if runs_url:
+        runs += f"{', then ' if runs else ''}open {runs_url}"
+    return f"next: hydrowatch score --model {out} --data RECORDINGS; the runs: {runs or tracking_uri}"
 
 
 def score_text(result: Mapping[str, Any]) -> str:
@@ -130,7 +134,9 @@ def demo_text(summary: Mapping[str, Any]) -> str:
     for kind, checks in summary["accuracy"].items():
         lines.append(f"  {kind:<8} {_join(checks, _pct)}" if checks else f"  {kind}")
     training: Mapping[str, Any] = next(iter(summary["training"].values()), {})
-    lines.append(f"files: {summary['out']}/ (models, recordings, logs); MLflow {training.get('tracking_uri', '')}")
+    runs = f", runs table {training['runs_url']}" if training.get("runs_url") else ""
+    lines.append(f"files: {summary['out']}/ (models, recordings, logs); MLflow {training.get('tracking_uri', '')}"
+                 + runs)
     lines.append(f"next: open {summary['report']}")
     return "\n".join(lines)
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.health.metrics import weakest_recall
 from hydrowatch.recording import UNITS
 from hydrowatch.report.html import Section
 from hydrowatch.report.plots import confusion_png, correlations_png, error_distributions_png, pole_zero_png
@@ -105,7 +106,8 @@ def training_section(result: TrainingResult, title: str) -> Section:
 
 
 def run_metrics(result: TrainingResult) -> dict[str, float]:
-    """Metrics of a training run, MLflow keys: NRMSE, Q/S or γ per sensor, accuracy, per-class recall."""
+    """Metrics of a training run, MLflow keys: NRMSE, Q/S or γ per sensor, accuracy on the held-out windows
+    (``test_accuracy``), per-class recall and the weakest one (``recall_min``), training time [s]."""
     ev = result.evaluation
     metrics: dict[str, float] = {"test_accuracy": ev["test_accuracy"],
                                  "test_accuracy_with_open_set": ev["test_accuracy_with_open_set"],
@@ -121,6 +123,7 @@ def run_metrics(result: TrainingResult) -> dict[str, float]:
                 metrics[f"{key}.{sensor}"] = summary["validation"][key]
         metrics[f"acf_inside.{sensor}"] = r["correlations"]["acf_inside"]
     metrics.update({f"recall.{s}": v for s, v in ev["per_class_recall"].items()})
+    metrics["recall_min"] = weakest_recall(ev["per_class_recall"])
     if "rule_temperature" in ev:
         metrics["rule_temperature"] = ev["rule_temperature"]
     return metrics

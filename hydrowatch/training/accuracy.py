@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.errors import ParameterError
-from hydrowatch.health.metrics import confusion_matrix, per_class_recall
+from hydrowatch.health.metrics import confusion_matrix, per_class_recall, weakest_recall
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.training.bundle import ModelBundle
@@ -55,10 +55,14 @@ def measure_accuracy(
 
 
 def accuracy_metrics(checks: Sequence[dict[str, Any]]) -> dict[str, float]:
-    """MLflow metrics of :func:`measure_accuracy` results: ``accuracy.<command>`` and ``recall.<command>.<state>``."""
+    """MLflow metrics of :func:`measure_accuracy` results, per command: ``accuracy.<command>``, ``windows.<command>``
+    (windows judged), ``recall_min.<command>`` (the weakest state's recall) and ``recall.<command>.<state>``."""
     out: dict[str, float] = {}
     for a in checks:
+        command, recall = a["command"], a["per_class_recall"]
         if a["accuracy"] is not None:
-            out[f"accuracy.{a['command']}"] = float(a["accuracy"])
-        out.update({f"recall.{a['command']}.{s}": float(r) for s, r in a["per_class_recall"].items()})
+            out[f"accuracy.{command}"] = float(a["accuracy"])
+        out[f"windows.{command}"] = float(a["windows"])
+        out[f"recall_min.{command}"] = weakest_recall(recall)
+        out.update({f"recall.{command}.{s}": float(r) for s, r in recall.items()})
     return out

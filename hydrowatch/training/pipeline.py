@@ -17,6 +17,11 @@ from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAU
 from hydrowatch.training.tracking import log_training
 from hydrowatch.training.trainer import train
 
+RUNS_TABLE_COLUMNS = ("test_accuracy", "recall_min", *(f"accuracy.{c}" for c in COMMANDS), "train_seconds")
+"""The metrics the training experiment's runs table shows as columns
+(:func:`~hydrowatch.training.tracking.set_runs_view`): the held-out accuracy and weakest recall, the accuracy
+checks on each command (with ``check_seconds``), the training time."""
+
 
 def train_and_track(
     data: str | Path,
@@ -35,11 +40,13 @@ def train_and_track(
     """Train from the recordings at ``data``, save the bundle to ``out``, log and register it.
 
     Returns the training result and the JSON summary (``hydrowatch train``'s output): the
-    result's summary plus ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``
-    and, with ``check_seconds`` > 0, ``checks`` (command → accuracy): every trained state simulated
-    again for ``check_seconds`` s with ``check_seed`` under each command of
-    :data:`~hydrowatch.training.accuracy.COMMANDS`, logged as ``accuracy.<command>`` metrics (the
-    states must be simulator states). ``skip_unreadable`` leaves out files that cannot be read yet
+    result's summary plus ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``,
+    ``runs_url`` (the runs table in MLflow's UI, :data:`RUNS_TABLE_COLUMNS` as columns) and, with
+    ``check_seconds`` > 0, ``checks`` (command → accuracy): every trained state simulated again for
+    ``check_seconds`` s with ``check_seed`` under each command of
+    :data:`~hydrowatch.training.accuracy.COMMANDS`, logged as metrics ``accuracy.<command>``,
+    ``windows.<command>``, ``recall_min.<command>`` and ``recall.<command>.<state>`` (the states must be
+    simulator states). ``skip_unreadable`` leaves out files that cannot be read yet
     (see :func:`read_labelled`).
     """
     started = time.time()
@@ -53,14 +60,15 @@ def train_and_track(
             result.evaluation["checks"] = checks
         write_training_artifacts(result, folder)
         logged = log_training(
-            params=settings.to_dict(), metrics={**run_metrics(result), **accuracy_metrics(checks)}, bundle_dir=out,
-            report_dir=folder, tracking=tracking, experiment=experiment,
+            params=settings.to_dict(), metrics={**run_metrics(result), **accuracy_metrics(checks)},
+            bundle=result.bundle, bundle_dir=out, report_dir=folder, tracking=tracking, experiment=experiment,
             run_name=f"{settings.name}-{result.bundle.version[7:]}", model_name=model_name, alias=alias,
             tags={"method": settings.method, "reference": settings.name, "bundle_version": result.bundle.version},
-            started_s=started,
+            started_s=started, columns=RUNS_TABLE_COLUMNS,
         )
     summary = {**result.summary(), "out": str(out), "run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"],
-               "model_uri": logged["model_uri"], "registered_version": logged["version"]}
+               "model_uri": logged["model_uri"], "registered_version": logged["version"],
+               "runs_url": logged["runs_url"]}
     if checks:
         summary["checks"] = {a["command"]: a["accuracy"] for a in checks}
     return result, summary

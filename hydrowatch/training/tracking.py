@@ -1,31 +1,38 @@
 """MLflow tracking of training runs and the model registry (../shared/docs/stack-notes.md, "MLflow").
 
-One run per trained bundle: parameters (reference model orders or delay lines and neurons, data
-plan, window), metrics (one-step NRMSE per sensor, Q/S or γ, test accuracy, per-class recall),
-artifacts (the bundle, the report plots and tables) and a registered model version pointing at
-the bundle, with an alias (``champion``) that the scorer can follow. The tracking URI is always
+One run per trained bundle, spanning its training: parameters (reference model orders or delay lines and neurons,
+data plan, window), metrics (one-step NRMSE per sensor, Q/S or γ, test accuracy, per-class recall, the accuracy
+checks), the report plots and tables as artifacts, and the bundle as an MLflow model of the run (pyfunc,
+:mod:`hydrowatch.training.mlflow_model`); a registered model version points at that model, with an alias
+(``champion``) that the scorer can follow. The tracking URI is always
 explicit: ``--tracking-uri``, else ``MLFLOW_TRACKING_URI``, else ``sqlite:///<cwd>/mlruns/mlflow.db``
 with artifacts next to the database (``mlruns/artifacts``).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.log import event, get_logger
+from hydrowatch.training.mlflow_model import bundle_folder, log_bundle_model
 from hydrowatch.training.options import (
     DEFAULT_ALIAS,
     DEFAULT_EXPERIMENT,
     DEFAULT_MODEL_NAME,
     DEFAULT_SCORING_EXPERIMENT,
 )
+
+if TYPE_CHECKING:
+    from hydrowatch.training.bundle import ModelBundle
 
 _log = get_logger(__name__)
 
@@ -50,6 +57,7 @@ def _artifact_root(uri: str) -> str | None:
 
 def _client(uri: str) -> Any:
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")  # stdout is our JSON; runs_url says it
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.WARNING)
     import mlflow
@@ -61,8 +69,31 @@ def _client(uri: str) -> Any:
 
 
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
-"""The experiment tag MLflow's UI reads to open an experiment in its model-training view; without it MLflow 3
-infers a GenAI experiment and opens traces and tokens (issue 16)."""
+"""The experiment tag that MLflow 3 UIs before the GenAI/Model-training switch read to open an experiment in the
+model-training view rather than the GenAI one (traces, tokens). MLflow 3.17's UI follows its own switch instead,
+remembered in the browser (default GenAI) or given in the address: :func:`runs_table_url` (issue 16)."""
+RUNS_VIEW = "checks"
+"""Share key of the runs-table view written to a training experiment (:func:`set_runs_view`)."""
+SHARED_VIEW_TAG = "mlflow.sharedViewState."
+"""Prefix of the experiment tags that hold MLflow's shared runs-table views (the UI's "share view"; the address
+names one with ``viewStateShareKey``)."""
+MLFLOW_UI = "http://127.0.0.1:5000"
+"""Where ``mlflow ui`` serves by default: the runs table's address for a store that is not a server."""
+
+
+def set_runs_view(client: Any, experiment_id: str, metrics: Sequence[str]) -> None:
+    """Write the runs-table view :data:`RUNS_VIEW` to the experiment: columns the registered model and ``metrics``
+    (MLflow 3.17 shows no metric column until one is chosen), newest run first; :func:`runs_table_url` opens it."""
+    columns = ["attributes.`Models`", *(f"metrics.`{m}`" for m in metrics)]
+    view = {"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False}
+    client.set_experiment_tag(experiment_id, SHARED_VIEW_TAG + RUNS_VIEW, json.dumps(view))
+
+
+def runs_table_url(uri: str, experiment_id: str) -> str:
+    """The address of an experiment's runs table in MLflow's UI, in the model-training view, with the columns of
+    :func:`set_runs_view`: on the tracking server for an ``http(s)`` URI, else on :data:`MLFLOW_UI`."""
+    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else MLFLOW_UI
+    return f"{base}/#/experiments/{experiment_id}/runs?workflowType=machine_learning&viewStateShareKey={RUNS_VIEW}"
 
 
 def _experiment_id(client: Any, name: str, uri: str) -> str:
@@ -86,6 +117,7 @@ def log_training(
     *,
     params: dict[str, Any],
     metrics: dict[str, float],
+    bundle: ModelBundle,
     bundle_dir: str | Path,
     report_dir: str | Path | None = None,
     tracking: str | None = None,
@@ -95,18 +127,22 @@ def log_training(
     alias: str | None = DEFAULT_ALIAS,
     tags: dict[str, str] | None = None,
     started_s: float | None = None,
+    columns: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``model_uri``, ``version``.
+    """Log one training run and register its bundle; returns ``run_id``, ``tracking_uri``, ``experiment``,
+    ``model_uri`` (registry), ``version``, ``model_id`` (the logged model) and ``runs_url`` (:func:`runs_table_url`).
 
     ``started_s`` (s since the Unix epoch): when the training began; the run then spans the training, so MLflow shows
-    its duration (default: the run starts when logging does).
+    its duration (default: the run starts when logging does). ``columns``: metrics the experiment's runs-table view
+    shows (:func:`set_runs_view`; empty: leave the view alone).
 
     Parameters
     ----------
     params, metrics : dict
         Logged in one batch each (non-finite metrics are left out).
-    bundle_dir : path
-        The saved :class:`~hydrowatch.training.bundle.ModelBundle`; logged under ``bundle/``.
+    bundle, bundle_dir : ModelBundle, path
+        The bundle and the folder it is saved in; logged as the run's MLflow model, named ``run_name``
+        (:func:`~hydrowatch.training.mlflow_model.log_bundle_model`), which the registered version points at.
     report_dir : path, optional
         Plots and tables; logged under ``report/``.
     model_name : str or None
@@ -120,31 +156,46 @@ def log_training(
     client = _client(uri)
     experiment_id = _experiment_id(client, experiment, uri)
     start_ms = int((time.time() if started_s is None else started_s) * 1000)
+    if columns:
+        set_runs_view(client, experiment_id, columns)
     begun = client.create_run(experiment_id, start_time=start_ms, run_name=run_name).info.run_id
     with mlflow.start_run(run_id=begun) as run:
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
         mlflow.log_metrics(_finite(metrics))
         if tags:
             mlflow.set_tags(tags)
-        mlflow.log_artifacts(str(bundle_dir), "bundle")
+        model = log_bundle_model(bundle, bundle_dir, name=run_name, tags=tags)
         if report_dir is not None:
             mlflow.log_artifacts(str(report_dir), "report")
         run_id = run.info.run_id
-        source = f"{run.info.artifact_uri}/bundle"
     out: dict[str, Any] = {"run_id": run_id, "tracking_uri": uri, "experiment": experiment, "model_uri": None,
-                           "version": None}
+                           "version": None, "model_id": model.model_id, "runs_url": runs_table_url(uri, experiment_id)}
     if model_name:
         try:
             client.get_registered_model(model_name)
         except Exception:  # noqa: BLE001 - MLflow raises its own RestException when missing
             client.create_registered_model(model_name)
-        version = client.create_model_version(model_name, source=source, run_id=run_id, tags=tags or {})
+        version = register_version(client, model_name, model, run_id, tags or {})
         if alias:
             client.set_registered_model_alias(model_name, alias, version.version)
         out["version"] = str(version.version)
         out["model_uri"] = f"models:/{model_name}@{alias}" if alias else f"models:/{model_name}/{version.version}"
-    event(_log, "training run logged", run_id=run_id, model=out["model_uri"], uri=uri)
+    event(_log, "training run logged", run_id=run_id, model=out["model_uri"], model_id=model.model_id, uri=uri)
     return out
+
+
+def register_version(client: Any, model_name: str, model: Any, run_id: str, tags: dict[str, str]) -> Any:
+    """A new version of ``model_name`` whose source is the logged model (``models:/<model_id>``), and the logged
+    model's tag ``mlflow.modelVersions`` listing it, as ``mlflow.register_model`` does (the model's page shows its
+    registered versions from that tag); quietly (``register_model`` prints to stderr)."""
+    from mlflow.utils.mlflow_tags import MLFLOW_MODEL_VERSIONS
+
+    version = client.create_model_version(model_name, source=model.model_uri, run_id=run_id, tags=tags,
+                                          model_id=model.model_id)
+    listed = json.loads(client.get_logged_model(model.model_id).tags.get(MLFLOW_MODEL_VERSIONS) or "[]")
+    listed.append({"name": model_name, "version": str(version.version)})
+    client.set_logged_model_tags(model.model_id, {MLFLOW_MODEL_VERSIONS: json.dumps(listed)})
+    return version
 
 
 METRICS_PER_BATCH = 1000
@@ -208,11 +259,14 @@ def resolve_version(uri: str, tracking: str | None = None) -> tuple[str, str]:
 
 
 def download_registered(uri: str, tracking: str | None = None) -> tuple[Path, str]:
-    """Download the bundle a registry URI points at; returns (local folder, ``NAME/vVERSION``)."""
+    """Download the bundle a registry URI points at; returns (local folder, ``NAME/vVERSION``).
+
+    A version registered since issue 16 is an MLflow model (source ``models:/<model_id>``) holding the bundle as
+    its ``bundle`` artifact; one registered before is the bundle folder itself (source ``…/artifacts/bundle``)."""
     import mlflow
 
     name, _, _ = parse_model_uri(uri)
     version, source = resolve_version(uri, tracking)
     folder = Path(tempfile.mkdtemp(prefix="hydrowatch-model-"))
-    local = mlflow.artifacts.download_artifacts(artifact_uri=source, dst_path=str(folder))
-    return Path(local), f"{name}/v{version}"
+    local = Path(mlflow.artifacts.download_artifacts(artifact_uri=source, dst_path=str(folder)))
+    return (bundle_folder(local) if (local / "MLmodel").exists() else local), f"{name}/v{version}"
