@@ -45,7 +45,7 @@ from scipy.optimize import least_squares
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
-from hydrowatch.condition.estimates import LPM_TO_M3S, check_windows, invalid_reasons
+from hydrowatch.condition.estimates import CHANNELS, LPM_TO_M3S, WIDTH, check_windows, invalid_reasons
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -185,8 +185,9 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
 
 def _signals(w: np.ndarray, viscosity_coefficient: float) -> _Signals:
     """SI signals of valid raw windows (m, n, 4 or 5), the leakage factor from the oil temperature when present."""
-    leak = parity.leakage_factor(w[:, :, 4] if w.shape[2] > 4 else None, w.shape[0], viscosity_coefficient)
-    return _Signals(w[:, :, 0], w[:, :, 1] * LPM_TO_M3S, w[:, :, 2], w[:, :, 3], leak)
+    leak = parity.leakage_factor(w[:, :, WIDTH] if w.shape[2] > WIDTH else None, w.shape[0], viscosity_coefficient)
+    v, q, s, t = (w[:, :, CHANNELS.index(c)] for c in ("voltage", "flow", "speed", "torque"))
+    return _Signals(v, q * LPM_TO_M3S, s, t, leak)
 
 
 HOLD_SETTLE = 50
