@@ -160,3 +160,22 @@ def test_the_real_rig_reaches_the_plain_baseline_per_component(tmp_path: Path) -
     for component, baseline in BASELINE_HONEST.items():
         assert figures[component]["accuracy"] >= baseline - 0.005, (component, figures[component])
         assert figures[component]["unknown"] <= 0.01, (component, figures[component])  # known cycles stay known
+
+
+def test_demo_on_a_rig_imports_trains_replays_from_the_registry_and_reports(
+    rig_data: dict[str, Path | str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = Path(rig_data["root"])
+    code, out = _run(capsys, "demo", "--rig", root / "rig.toml", "--data", root / "train", "--out", root / "demo",
+                     "--tracking-uri", rig_data["uri"], "--json")
+    summary = json.loads(out)
+    assert code == 0 and summary["cycles"] == 120
+    assert summary["imported"] == {"valve": {"100": 60, "80": 60}, "pump": {"0": 60, "1": 60}}
+    assert summary["model_uri"] == "models:/hydrowatch-tiny-cycles@champion"
+    # the replay reads the training cycles back through the registered model: nearly all right, never a wrong state
+    for component, replayed in summary["replay"].items():
+        assert replayed["accuracy"] >= 0.95, component
+        assert sum(n for s, n in replayed["counts"].items() if s != "unknown") == round(replayed["accuracy"] * 120)
+    html = (root / "demo" / "report.html").read_text()
+    assert "Training: the honest split per component" in html and html.count("<img") == 2
+    assert len(json.loads((root / "demo" / "scores.json").read_text())["cycles"]) == 120
