@@ -136,6 +136,9 @@ def test_a_rig_folder_scores_without_labels_and_a_recording_is_refused(
     scored = json.loads(out)
     assert code == 0 and scored["summary"]["accuracy"] == {"valve": None, "pump": None}
     assert "truth" not in scored["cycles"][0]["components"]["pump"]
+    code = main(["train", "--rig", str(root / "rig.toml"), "--data", str(root / "train"), "--out", str(root / "x"),
+                 "--method", "stats"])
+    assert code == 2 and "--rig trains the cycles method" in capsys.readouterr().err
     from hydrowatch.training import load_bundle
 
     with pytest.raises(DataError, match="trains from a rig's cycles"):
