@@ -108,8 +108,12 @@ def test_train_and_score_a_rig_give_a_verdict_per_component(
     assert run.data.metrics["accuracy.valve"] == summary["components"]["valve"]["accuracy"]
     assert {"macro_f1.pump", "unknown.valve", "recall.valve.80"} <= set(run.data.metrics)
 
-    code, out = _run(capsys, "score", "--model", model, "--data", root / "new", "--json")
+    code, out = _run(capsys, "score", "--model", model, "--data", root / "new", "--json", "--log-run",
+                     "--tracking-uri", rig_data["uri"], "--experiment", "rig-scoring")
     scored = json.loads(out)
+    logged = mlflow.search_runs(experiment_names=["rig-scoring"], output_format="list")[0].data
+    assert logged.metrics == {"cycles": 4.0, "unknown.valve": 0.5, "unknown.pump": 0.0, "accuracy.valve": 1.0,
+                              "accuracy.pump": 1.0} and logged.params["rig"] == "tiny-cycles"
     assert code == 0 and scored["summary"]["cycles"] == 4 and len(scored["cycles"]) == 4
     first = scored["cycles"][0]["components"]
     assert first["valve"]["state"] == "100" and first["pump"]["state"] == "1"

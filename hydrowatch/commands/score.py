@@ -83,10 +83,20 @@ def metric_name(text: str) -> str:
 
 
 def _score_cycles(bundle: ModelBundle, args: argparse.Namespace, as_json: bool) -> int:
-    """A cycles bundle: the rig folder ``--data`` scored cycle by cycle, one JSON object (docs/formats.md)."""
-    from hydrowatch.training.rig_pipeline import read_rig_folder, score_cycles
+    """A cycles bundle: the rig folder ``--data`` scored cycle by cycle, one JSON object (docs/formats.md); with
+    ``--log-run`` an MLflow run with :func:`~hydrowatch.training.rig_pipeline.cycle_scoring_metrics`."""
+    from hydrowatch.training.rig_pipeline import cycle_scoring_metrics, read_rig_folder, score_cycles
 
     result = score_cycles(bundle, read_rig_folder(bundle.health_method, args.data))  # type: ignore[arg-type]
+    if args.log_run:
+        from hydrowatch.training.tracking import log_scoring
+
+        logged = log_scoring(params={"model": args.model, "model_version": bundle.version, "method": bundle.method,
+                                     "data": str(args.data), "rig": result["rig"]},
+                             metrics=cycle_scoring_metrics(result), steps=[], tracking=args.tracking_uri,
+                             experiment=args.experiment, run_name=f"score {Path(args.data).name}")
+        if not as_json:
+            print(f"logged MLflow run {logged['run_id']} ({logged['experiment']}, {logged['tracking_uri']})")
     if as_json:
         print(json.dumps(result), flush=True)
         return 0

@@ -6,6 +6,8 @@ of the runs table in MLflow's UI, and with ``--check-seconds`` the accuracy on o
 ``--method both`` trains ``OUT/entropy`` and ``OUT/parity`` as two runs to compare. The JSON goes out
 with ``--json`` or when stdout is not a terminal; on a terminal a short summary per bundle
 (:mod:`hydrowatch.report.console`). The work is :func:`hydrowatch.training.pipeline.train_each`.
+``--rig NAME|FILE`` trains the cycles method on a rig's data folder instead
+(:func:`hydrowatch.training.rig_pipeline.train_rig_and_track`, docs/rigs.md).
 """
 
 from __future__ import annotations

@@ -122,3 +122,16 @@ def score_cycles(bundle: ModelBundle, cycles: Cycles) -> dict[str, Any]:
     return {"source": cycles.source, "rig": method.rig.name, "cycles": rows,
             "summary": {"cycles": len(cycles), "counts": counts, "accuracy": accuracy,
                         "model_version": bundle.version}}
+
+
+def cycle_scoring_metrics(scored: dict[str, Any]) -> dict[str, float]:
+    """``score --log-run``'s metrics of a cycles bundle's object: ``cycles``, per component ``accuracy.<c>`` (when
+    labelled) and ``unknown.<c>`` (share of cycles read unknown)."""
+    summary = scored["summary"]
+    n = summary["cycles"]
+    metrics = {"cycles": float(n)}
+    for c, counts in summary["counts"].items():
+        metrics[f"unknown.{c}"] = counts.get(UNKNOWN, 0) / n if n else float("nan")
+        if summary["accuracy"][c] is not None:
+            metrics[f"accuracy.{c}"] = summary["accuracy"][c]
+    return metrics
