@@ -11,8 +11,12 @@ import argparse
 import json
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hydrowatch.training.options import DEFAULT_SCORING_EXPERIMENT
+
+if TYPE_CHECKING:
+    from hydrowatch.training.bundle import ModelBundle
 
 NAME = "score"
 HELP = "score recordings window by window with a model bundle (MODEL_DIR or models:/NAME@ALIAS)"
@@ -45,8 +49,10 @@ def run(args: argparse.Namespace) -> int:
     from hydrowatch.training.scoring import scoring_metrics, smoothing_for
 
     bundle = load_bundle(args.model, args.tracking_uri)
-    smoothing = smoothing_for(bundle, args.smoothing)
     as_json = json_output(args.json)
+    if bundle.method == "cycles":
+        return _score_cycles(bundle, args, as_json)
+    smoothing = smoothing_for(bundle, args.smoothing)
     files = recording_files(args.data)
     metrics: dict[str, float] = {}
     steps: list[tuple[str, float, int]] = []
@@ -74,3 +80,29 @@ def run(args: argparse.Namespace) -> int:
 def metric_name(text: str) -> str:
     """``text`` with every character MLflow refuses in a metric key (not alphanumeric, ``_-. /``) as ``_``."""
     return re.sub(r"[^A-Za-z0-9_\-. /]", "_", text)
+
+
+def _score_cycles(bundle: ModelBundle, args: argparse.Namespace, as_json: bool) -> int:
+    """A cycles bundle: the rig folder ``--data`` scored cycle by cycle, one JSON object (docs/formats.md); with
+    ``--log-run`` an MLflow run with :func:`~hydrowatch.training.rig_pipeline.cycle_scoring_metrics`."""
+    from hydrowatch.training.rig_pipeline import cycle_scoring_metrics, read_rig_folder, score_cycles
+
+    result = score_cycles(bundle, read_rig_folder(bundle.health_method, args.data))  # type: ignore[arg-type]
+    if args.log_run:
+        from hydrowatch.training.tracking import log_scoring
+
+        logged = log_scoring(params={"model": args.model, "model_version": bundle.version, "method": bundle.method,
+                                     "data": str(args.data), "rig": result["rig"]},
+                             metrics=cycle_scoring_metrics(result), steps=[], tracking=args.tracking_uri,
+                             experiment=args.experiment, run_name=f"score {Path(args.data).name}")
+        if not as_json:
+            print(f"logged MLflow run {logged['run_id']} ({logged['experiment']}, {logged['tracking_uri']})")
+    if as_json:
+        print(json.dumps(result), flush=True)
+        return 0
+    summary = result["summary"]
+    for c, counts in summary["counts"].items():
+        right = summary["accuracy"][c]
+        print(f"{c}: {counts}" + ("" if right is None else f", accuracy {right:.1%}"))
+    print(f"{summary['cycles']} cycles of rig {result['rig']}; model {bundle.version}")
+    return 0

@@ -20,6 +20,7 @@ REGISTRY: dict[str, str] = {
     "parity": "hydrowatch.methods.parity:ParityMethod",
     "entropy": "hydrowatch.methods.entropy:EntropyMethod",
     "stats": "hydrowatch.methods.stats:StatsMethod",
+    "cycles": "hydrowatch.methods.cycles:CyclesMethod",
 }
 """Method name → ``module:Class``. The first is the default method."""
 

@@ -339,13 +339,10 @@ def load_rig(path: str | Path) -> RigDescription:
     """Read and validate a rig description file (TOML)."""
     path = Path(path)
     try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise DataError("rig description file must exist. It does not.", str(path)) from None
-    except tomllib.TOMLDecodeError as e:
-        raise DataError(f"rig description must be valid TOML: {e}.", str(path)) from None
-    return parse_rig(data, str(path))
+    return rig_from_text(text, str(path))
 
 
 BUILTIN = ("uci-hydraulic",)
@@ -359,6 +356,31 @@ def builtin_rig(name: str) -> RigDescription:
         raise ParameterError(f"rig must be one of {list(BUILTIN)} or a path to a .toml file. Got {name!r}.")
     with resources.as_file(resources.files("hydrowatch.rig") / f"{name}.toml") as path:
         return load_rig(path)
+
+
+def rig_text(rig: str) -> tuple[RigDescription, str]:
+    """A shipped description (by name) or a .toml file, and its TOML text (what a model bundle keeps of its rig).
+
+    Raises
+    ------
+    DataError, ParameterError
+        As :func:`load_rig` and :func:`builtin_rig`.
+    """
+    if rig in BUILTIN:
+        with resources.as_file(resources.files("hydrowatch.rig") / f"{rig}.toml") as path:
+            return load_rig(path), path.read_text(encoding="utf-8")
+    if not rig.endswith(".toml"):
+        raise ParameterError(f"rig must be one of {list(BUILTIN)} or a path to a .toml file. Got {rig!r}.")
+    return load_rig(rig), Path(rig).read_text(encoding="utf-8")
+
+
+def rig_from_text(text: str, source: str) -> RigDescription:
+    """Parse and validate a description's TOML ``text`` (``source`` names it in errors)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise DataError(f"rig description must be valid TOML: {e}.", source) from None
+    return parse_rig(data, source)
 
 
 DATA_ENV = "HYDROWATCH_DATA"

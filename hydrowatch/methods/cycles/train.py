@@ -1,0 +1,127 @@
+"""Fitting the per-cycle method: one open-set classifier per component of a rig, and its honest evaluation.
+
+Everything here reuses :mod:`hydrowatch.cycles`: :class:`~hydrowatch.cycles.ComponentClassifier` (features →
+LDA), :class:`~hydrowatch.cycles.openset.OpenSetComponent` (``unknown``) and
+:func:`~hydrowatch.cycles.ordered_split` (the honest split). Per component the feature set (``statistics`` or
+``transients``) is the one with the better accuracy on the honest split *inside the cycles it is fitted on*
+(first 70 % of each class fit, last 30 % validate); a feature set the rig cannot make (no load change on the
+reference channel) is skipped. The evaluation fits on the first 70 % of each class's cycles in recording
+order and tests on the last 30 % (docs/rigs.md: random splits flatter every method).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hydrowatch.cycles import FEATURES, ComponentClassifier, ordered_split
+from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
+from hydrowatch.errors import ParameterError
+from hydrowatch.health.metrics import confusion_matrix, per_class_recall
+from hydrowatch.rig import Label, RigDescription
+
+FAST_HZ = 10.0
+"""Channels recorded at least this fast (Hz) make the ``transients`` features (slow ones have no load-change
+dynamics); a rig without such channels uses all of them."""
+PHASES = 6
+"""Phase means per channel of the ``statistics`` features: 6 (the UCI cycle's), or the largest number below that
+divides a rig's samples per cycle."""
+
+
+def state_name(value: Any) -> str:
+    """A label value as a state name: ``100`` for 100.0, ``2.5``, or the text of a named value."""
+    return f"{value:g}" if isinstance(value, int | float | np.floating) else str(value)
+
+
+def component_states(label: Label) -> list[str]:
+    """The component's states, the healthy one first, then the others as declared."""
+    healthy = state_name(label.healthy)
+    return [healthy, *[state_name(v) for v in label.values if state_name(v) != healthy]]
+
+
+@dataclass(frozen=True)
+class CycleData:
+    """What a component's classifier is fitted on.
+
+    Attributes
+    ----------
+    values : ndarray, shape (n_cycles, n_channels, n_samples)
+        The cycles on the grid, recording order.
+    states : ndarray of str, shape (n_cycles,)
+        The component's state per cycle.
+    nuisance : ndarray, shape (n_cycles, n_others)
+        The other components' label values (what the ``transients`` projection removes).
+    """
+
+    values: np.ndarray
+    states: np.ndarray
+    nuisance: np.ndarray
+
+    def part(self, index: np.ndarray) -> CycleData:
+        """The cycles ``index`` (recording order kept)."""
+        return CycleData(self.values[index], self.states[index], self.nuisance[index])
+
+
+def classifier(features: str, rig: RigDescription) -> ComponentClassifier:
+    """An unfitted classifier of ``features`` for ``rig``'s channels (``statistics``: :data:`PHASES` phase means;
+    ``transients``: the fast channels, the load changes found on the first channel)."""
+    names = rig.channels.names
+    fast = [names.index(c) for c in rig.recorded_at_least(FAST_HZ)]
+    phases = next(k for k in range(PHASES, 0, -1) if rig.window.samples % k == 0)
+    return ComponentClassifier(features=features, grid_hz=rig.window.grid_hz, phases=phases,
+                               channels=(fast or None) if features == "transients" else None)
+
+
+def validation_accuracy(features: str, rig: RigDescription, data: CycleData) -> float:
+    """Accuracy of ``features`` on the honest split inside ``data``; NaN when the rig cannot make them."""
+    fit_part, check = ordered_split(data.states)
+    train = data.part(fit_part)
+    try:
+        model = classifier(features, rig).fit(train.values, train.states, train.nuisance)
+    except ParameterError:
+        return float("nan")
+    return float(np.mean(model.predict(data.values[check]) == data.states[check]))
+
+
+def fit_component(rig: RigDescription, data: CycleData) -> tuple[OpenSetComponent, str, dict[str, float]]:
+    """The open-set classifier of one component fitted on ``data``, its feature set and each set's validation
+    accuracy."""
+    scores = {f: validation_accuracy(f, rig, data) for f in FEATURES}
+    usable = {f: s for f, s in scores.items() if np.isfinite(s)}
+    if not usable:
+        raise ParameterError(f"no feature set of {list(FEATURES)} could be fitted on these cycles.")
+    best = max(usable.values())
+    features = next(f for f, s in usable.items() if s >= best - 1e-3)
+    model = OpenSetComponent(classifier(features, rig)).fit(data.values, data.states, data.nuisance)
+    return model, features, scores
+
+
+def component_data(rig: RigDescription, values: np.ndarray, labels: dict[str, np.ndarray], component: str) -> CycleData:
+    """A component's :class:`CycleData` from a rig's cycles and labels."""
+    others = [c for c in rig.components if c != component]
+    nuisance = np.column_stack([labels[c].astype(float) for c in others]) if others else np.zeros((len(values), 1))
+    return CycleData(values, np.array([state_name(v) for v in labels[component]]), nuisance)
+
+
+def evaluate_component(rig: RigDescription, data: CycleData, states: list[str]) -> dict[str, Any]:
+    """The honest split's figures of one component: ``accuracy`` (``unknown`` counted wrong), ``macro_f1``,
+    ``unknown`` (share of test cycles read unknown), ``per_class_recall``, ``confusion_matrix`` (rows true
+    ``states``, columns ``states`` then ``unknown``), ``features``, ``validation``, ``train_cycles``,
+    ``test_cycles``."""
+    from sklearn.metrics import f1_score
+
+    train, test = ordered_split(data.states)
+    model, features, validation = fit_component(rig, data.part(train))
+    truth, predicted = data.states[test], model.predict(data.values[test]).astype(str)
+    present = [s for s in states if s in set(truth)]
+    return {
+        "accuracy": float(np.mean(predicted == truth)),
+        "macro_f1": float(f1_score(truth, predicted, labels=present, average="macro", zero_division=0)),
+        "unknown": float(np.mean(predicted == UNKNOWN)),
+        "per_class_recall": per_class_recall(truth, predicted, states),
+        "confusion_matrix": confusion_matrix(truth, predicted, [*states, UNKNOWN])[: len(states)].tolist(),
+        "features": features, "validation": validation,
+        "train_cycles": int(train.size), "test_cycles": int(test.size),
+    }
