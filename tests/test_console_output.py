@@ -100,7 +100,8 @@ def commands(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
             return self
 
     monkeypatch.setattr(hydrowatch.training.pipeline, "train_each", lambda *a, **k: iter([TRAINED]))
-    monkeypatch.setattr(hydrowatch.training, "load_bundle", lambda *a: SimpleNamespace(version=TRAINED["version"]))
+    monkeypatch.setattr(hydrowatch.training, "load_bundle", lambda *a: SimpleNamespace(version=TRAINED["version"],
+                                                                                    method=TRAINED["method"]))
     monkeypatch.setattr(hydrowatch.training.scoring, "smoothing_for", lambda bundle, n: 12)
     monkeypatch.setattr(hydrowatch.training, "recording_files", lambda data: [Path(SCORED["source"])])
     monkeypatch.setattr(hydrowatch.training, "score_recording", lambda *a: SCORED)
