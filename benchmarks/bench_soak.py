@@ -8,7 +8,8 @@ close files every 1800 s and chunks every 1 s (their default), the plant keeps 3
 alias every 60 s. The trainer trains on a simulated set (as benchmarks/bench_bus_router_faults.py) every
 ``--retrain`` s and moves the alias: the scorers switch models during the run. Scorers keep ``--forecast-history``
 equal to the warm-up (in simulated s) so that their bounded forecast rings (46 kB per machine at the default 2 h)
-are full once the warm-up ends; everything else is as deployed.
+are full once the warm-up ends; everything else is as deployed. The web's timelines (360 windows per machine) fill
+for 1800 simulated s, by design; a shorter warm-up says so.
 
 Measured:
 
@@ -31,7 +32,8 @@ Usage::
     python benchmarks/bench_soak.py [--machines 1000] [--minutes 60] [--speed 1] [--quick] [--loopback] [--sqlite]
         [--warmup-minutes M] [--interval S] [--retrain S] [--keep DIR]
 
-``--minutes 10`` is the 10-minute variant; ``--quick`` runs 3 minutes (1 of warm-up) for a small machine.
+``--minutes 10`` is the 10-minute variant; ``--quick`` runs 3 minutes; the warm-up is a sixth of the run (at most 10
+min) and at least 75 simulated s (``SETTLE_SIM_S``). On the 2-core build machine: ``--quick --machines 250``.
 """
 
 from __future__ import annotations
@@ -57,6 +59,12 @@ from hydrowatch.testbed.topology import Topology, TopologySettings  # noqa: E402
 from hydrowatch.testbed.usage import UsageSampler, memory_trend  # noqa: E402
 
 FLEET = "soak"
+SETTLE_SIM_S = 75.0
+"""Simulated s after which every fixed-size per-machine buffer but the web's timelines is full: the plant's 30 s
+history, the scorers' 12-window pools and the web's 12 windows of evidence (60 s), plus 15 s. The warm-up is at least
+this long (the quick run at first measured the plant's history filling: +1.2 GB at 1000 machines)."""
+WEB_TIMELINE_SIM_S = 1800.0
+"""Simulated s the web's timelines take to fill (360 windows per machine, ~80 B each: hydrowatch.web.live)."""
 SERVICES = ("router", "plant", "record-0", "record-1", "score-0", "score-1", "trainer", "web", "mlflow", "postgres")
 
 
@@ -71,15 +79,22 @@ class Verdicts:
         """(received ns, window end as a sample index, 1 when invalid) per verdict."""
         self.windows: Counter[tuple[str, int]] = Counter()
         """(machine, window start sample index) → verdicts (not invalid)."""
+        self.bytes: Counter[str] = Counter()
+        """Payload bytes and messages heard per topic (``health``, ``kl``, ``sensors``; ``<topic> messages``)."""
         self._ready, self._done = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._listen, name="verdicts", daemon=True)
 
     def _listen(self) -> None:
         with open_session(self.settings) as session, \
-                Subscriber(session, [f"hydro/{FLEET}/*/health", f"hydro/{FLEET}/m000/sensors"]) as sub:
+                Subscriber(session, [f"hydro/{FLEET}/*/health", f"hydro/{FLEET}/*/kl",
+                                     f"hydro/{FLEET}/m000/sensors"]) as sub:
             self._ready.set()
             while not self._done.is_set():
                 for message in sub.recv_many(timeout=0.2):
+                    self.bytes[message.key.topic] += len(message.payload)
+                    self.bytes[f"{message.key.topic} messages"] += 1
+                    if message.key.topic == "kl":
+                        continue
                     if message.key.topic == "sensors":
                         span = message.time_span()
                         if span is not None:
@@ -94,10 +109,18 @@ class Verdicts:
                             self.windows[(message.key.machine, round(start * SAMPLE_RATE_HZ))] += 1
 
     def latencies_ms(self, after_ns: int) -> np.ndarray:
-        """Window end → verdict received, ms, for verdicts received after ``after_ns`` whose window end is dated."""
-        found = [(received - self.chunk_published[end]) / 1e6 for received, end, _ in list(self.heard)
-                 if received >= after_ns and end in self.chunk_published]
-        return np.asarray(found)
+        """Window end → verdict received, ms, for verdicts received after ``after_ns`` whose window end is dated: by
+        the chunk that holds the window's last sample (the first chunk ending at or after the window's end; windows
+        are staggered, chunks are not)."""
+        ends = np.array(sorted(self.chunk_published))
+        published = np.array([self.chunk_published[e] for e in ends])
+        heard = np.array([(received, end) for received, end, _ in list(self.heard) if received >= after_ns])
+        if not heard.size or not ends.size:
+            return np.empty(0)
+        at = np.searchsorted(ends, heard[:, 1])
+        chunk = ends[1] - ends[0] if ends.size > 1 else 0
+        dated = (at < ends.size) & (heard[:, 1] > ends[0] - chunk)  # not before m000's first chunk heard
+        return (heard[dated, 0] - published[at[dated]]) / 1e6
 
     def plant_speed(self) -> float:
         """Simulated s per wall-clock s between m000's first and last chunk."""
@@ -116,12 +139,16 @@ class Verdicts:
         self._thread.join(timeout=30)
 
 
-def recorded_chunks(folder: Path) -> tuple[dict[str, Counter[int]], dict[int, int]]:
-    """Per machine, how often each chunk start (sample index) is in the files under ``folder`` (every shard's),
-    and rows per chunk start seen; read from each record's head and first time, the samples not decoded."""
+def recorded_chunks(folder: Path) -> tuple[dict[str, Counter[int]], dict[int, int], Counter[str]]:
+    """Per machine, how often each chunk start (sample index) is in the files under ``folder`` (every shard's);
+    rows per chunk start seen; and the totals ``files``, ``file_bytes``, ``messages``, ``payload_bytes``. Read from
+    each record's head and first time, the samples not decoded."""
     starts: dict[str, Counter[int]] = {}
     rows: dict[int, int] = {}
+    totals: Counter[str] = Counter()
     for path in sorted(folder.rglob("*.mcap")):
+        totals["files"] += 1
+        totals["file_bytes"] += path.stat().st_size
         found = starts.setdefault(path.parent.name, Counter())
         for channel, schema, record in iter_records(path):
             expected = expected_schema(channel, schema)
@@ -131,7 +158,9 @@ def recorded_chunks(folder: Path) -> tuple[dict[str, Counter[int]], dict[int, in
             start = round(layout.start_time(record.data) * SAMPLE_RATE_HZ)  # type: ignore[operator]
             found[start] += 1
             rows[start] = layout.rows
-    return starts, rows
+            totals["messages"] += 1
+            totals["payload_bytes"] += len(record.data)
+    return starts, rows, totals
 
 
 def pids(topology: Topology) -> dict[str, int]:
@@ -146,6 +175,25 @@ def pids(topology: Topology) -> dict[str, int]:
     return found
 
 
+def registry_load(topology: Topology, looks: int = 20) -> str:
+    """What the MLflow server answers: the time of one alias look-up (what each scorer does every --follow-alias s),
+    over ``looks`` of them, and the artifacts stored per registered version (what each scorer downloads when the
+    alias moves)."""
+    from mlflow import MlflowClient
+
+    s = topology.settings
+    client = MlflowClient(tracking_uri=topology.tracking_uri, registry_uri=topology.tracking_uri)
+    took = []
+    for _ in range(looks):
+        began = time.perf_counter()
+        version = client.get_model_version_by_alias(s.model_name, s.alias).version
+        took.append(time.perf_counter() - began)
+    stored = sum(p.stat().st_size for p in (topology.work / "mlartifacts").rglob("*") if p.is_file())
+    return (f"MLflow ({topology.backend}): alias look-up p50 {np.median(took) * 1e3:.0f} ms, max "
+            f"{max(took) * 1e3:.0f} ms over {looks}; {version} versions registered, {stored / 1e6:.2f} MB of "
+            f"artifacts ({stored / 1e6 / int(version):.2f} MB per version)")
+
+
 def run(args: argparse.Namespace, work: Path) -> None:
     seconds = args.minutes * 60.0
     warmup_sim = args.warmup_minutes * 60.0 * args.speed
@@ -154,7 +202,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         plant_seconds=seconds * args.speed, history=30.0, retrain=args.retrain, rotate_s=1800.0, flush_s=1.0,
         follow_s=60.0, namespaces=not args.loopback, postgres=not args.sqlite,
         train_data=str(training_set(work / "train")),
-        extra={f"score-{i}": ("--forecast-history", f"{max(warmup_sim, 60.0):g}") for i in range(2)})
+        extra={f"score-{i}": ("--forecast-history", f"{warmup_sim:g}") for i in range(2)})
     load = [os.getloadavg()]
     with Topology(work, settings) as topology:
         for host in ("record-0", "record-1", "web"):
@@ -179,9 +227,12 @@ def run(args: argparse.Namespace, work: Path) -> None:
             ended_at = time.monotonic()
             load.append(os.getloadavg())
             time.sleep(5)  # the last windows' verdicts
+        registry = registry_load(topology)
         codes = topology.close()
-        starts, rows = recorded_chunks(topology.recordings)
+        starts, rows, totals = recorded_chunks(topology.recordings)
     report(args, usage, verdicts, starts, rows, began, began_ns, ended_at, load, codes, topology)
+    print(recordings_line(args, totals))
+    print(registry)
 
 
 def memory_table(args: argparse.Namespace, usage: UsageSampler, began: float, ended: float) -> None:
@@ -208,10 +259,23 @@ def memory_table(args: argparse.Namespace, usage: UsageSampler, began: float, en
         print(f"{name:10} {at(began):>9.1f} {at(after):>12.1f} {at(middle):>8.1f} {at(ended):>8.1f} "
               f"{rss[steady].max() / 1e6:>8.1f} {trend.slope:>+9.1f} [{trend.low:>+7.1f}, {trend.high:>+7.1f}] "
               f"{verdicts[name]:>10} {cores:>6.2f}")
+    if args.warmup_minutes * 60.0 * args.speed < WEB_TIMELINE_SIM_S:
+        print(f"(web: its timelines fill until {WEB_TIMELINE_SIM_S:g} simulated s, "
+              f"{WEB_TIMELINE_SIM_S / args.speed / 60:g} min here: ~{args.machines * 360 * 80 / 1e6:.0f} MB in all, "
+              "by design)")
     flat = all(v == "flat" for v in verdicts.values())
     print(f"memory flat after warm-up (every service's slope below {args.flat_mb_h:g} MB/h at 95 %): "
           f"{'yes' if flat else 'NO'}" + ("" if flat else " — " + ", ".join(
               f"{n} {v}" for n, v in verdicts.items() if v != "flat")))
+
+
+def recordings_line(args: argparse.Namespace, totals: Counter[str]) -> str:
+    """Bytes on disk and on the wire per machine, from the recordings."""
+    machine_s = args.machines * args.minutes * 60.0 * args.speed
+    return (f"recordings: {totals['file_bytes'] / 1e6:.1f} MB in {totals['files']} files, "
+            f"{totals['file_bytes'] / machine_s / 1e3:.2f} kB per machine-second of data; payloads (as published) "
+            f"{totals['payload_bytes'] / max(totals['messages'], 1):.0f} B per message, "
+            f"{totals['payload_bytes'] / machine_s / 1e3:.2f} kB per machine-second")
 
 
 def report(args, usage, verdicts, starts, rows, began, began_ns, ended, load, codes, topology) -> None:  # noqa: ANN001
@@ -241,6 +305,9 @@ def report(args, usage, verdicts, starts, rows, began, began_ns, ended, load, co
         p50, p99, worst = np.percentile(ms, [50, 99, 100])
         print(f"verdict latency after the warm-up (window end → verdict received, {ms.size:,} verdicts): "
               f"p50 {p50:.0f} ms, p99 {p99:.0f} ms, max {worst:.0f} ms")
+    print("payload per message: " + ", ".join(
+        f"{topic} {verdicts.bytes[topic] / verdicts.bytes[f'{topic} messages']:.0f} B"
+        for topic in ("sensors", "health", "kl") if verdicts.bytes[f"{topic} messages"]))
     print("exit status at the end (SIGTERM): " + ", ".join(f"{h} {c}" for h, c in codes.items()))
     if args.keep is not None:
         with (args.keep / "memory.csv").open("w") as out:
@@ -258,7 +325,8 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock minutes the plant runs")
     parser.add_argument("--warmup-minutes", type=float, default=None,
                         help="left out of the memory slope and latency (default: a sixth of the run, at most 10)")
-    parser.add_argument("--quick", action="store_true", help="3 minutes, 1 of warm-up, samples every 2 s")
+    parser.add_argument("--quick", action="store_true",
+                        help="3 minutes, samples every 2 s (with --machines 250 for 2 cores)")
     parser.add_argument("--interval", type=float, default=5.0, help="seconds between memory samples")
     parser.add_argument("--retrain", type=float, default=1200.0, help="trainer's --every, s")
     parser.add_argument("--flat-mb-h", type=float, default=5.0, help="memory slope below which a service is flat")
@@ -266,11 +334,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.minutes, args.interval = 3.0, 2.0
-        args.warmup_minutes = 1.0 if args.warmup_minutes is None else args.warmup_minutes
+    settle = SETTLE_SIM_S / args.speed / 60.0
     if args.warmup_minutes is None:
-        args.warmup_minutes = min(args.minutes / 6, 10.0)
-    if not 0 <= args.warmup_minutes < args.minutes:
-        parser.error("--warmup-minutes must be >= 0 and shorter than --minutes")
+        args.warmup_minutes = max(settle, min(args.minutes / 6, 10.0))
+    if not settle <= args.warmup_minutes < args.minutes:
+        parser.error(f"--warmup-minutes must be at least {settle:.2f} ({SETTLE_SIM_S:g} simulated s: fixed-size "
+                     f"buffers fill) and shorter than --minutes ({args.minutes:g}); fewer machines at a higher "
+                     "--speed shorten it")
     run_topology(args, run, "bench-soak-")
 
 
