@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,7 +40,12 @@ def test_a_tree_holds_the_children_and_their_memory() -> None:
         assert mine.cpu_s > 0
     finally:
         child.kill()
-        child.wait()
+    deadline = time.monotonic() + 10
+    while Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":  # exited, not reaped
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert tree_usage(child.pid) is None  # a zombie has no memory: not a sample of 0
+    child.wait()
     assert tree_usage(child.pid) is None and process_tree(child.pid) == []
     with pytest.raises(ProcessLookupError, match=str(child.pid)):
         process_rss(child.pid)

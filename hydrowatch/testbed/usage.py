@@ -42,12 +42,12 @@ def process_rss(pid: int) -> int:
     return 0
 
 
-def _stat(pid: int) -> tuple[int, float]:
-    """(parent pid, CPU s) from ``/proc/<pid>/stat`` (the command name, field 2, may hold spaces and parentheses:
-    fields are counted after its last ``)``)."""
+def _stat(pid: int) -> tuple[int, float, str]:
+    """(parent pid, CPU s, state letter) from ``/proc/<pid>/stat`` (the command name, field 2, may hold spaces and
+    parentheses: fields are counted after its last ``)``)."""
     text = (PROC / str(pid) / "stat").read_text()
     fields = text[text.rindex(")") + 2:].split()
-    return int(fields[1]), (int(fields[11]) + int(fields[12])) / TICKS_PER_S  # ppid; utime + stime
+    return int(fields[1]), (int(fields[11]) + int(fields[12])) / TICKS_PER_S, fields[0]  # ppid; utime + stime
 
 
 def process_tree(pid: int) -> list[int]:
@@ -88,17 +88,29 @@ class TreeUsage:
 
 
 def tree_usage(pid: int) -> TreeUsage | None:
-    """Memory and CPU time of ``pid`` and its descendants now; None when ``pid`` is gone. Processes that end while
-    they are read are left out."""
+    """Memory and CPU time of ``pid`` and its descendants now; None when ``pid`` is gone or has exited and waits to
+    be reaped (a zombie: no memory, which would read as a drop to 0). Processes that end while they are read, and
+    zombies, are left out."""
     rss, cpu_s, count = 0, 0.0, 0
     for member in process_tree(pid):
         try:
+            _, cpu, state = _stat(member)
+            if state == "Z":
+                continue
             rss += process_rss(member)
-            cpu_s += _stat(member)[1]
         except (FileNotFoundError, ProcessLookupError):
             continue
+        cpu_s += cpu
         count += 1
-    return TreeUsage(rss, cpu_s, count) if count else None
+    return TreeUsage(rss, cpu_s, count) if count and _alive(pid) else None
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (exists and is not a zombie)."""
+    try:
+        return _stat(pid)[2] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
 
 
 class UsageSampler:
