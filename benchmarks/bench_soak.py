@@ -33,7 +33,9 @@ Usage::
         [--warmup-minutes M] [--interval S] [--retrain S] [--keep DIR]
 
 ``--minutes 10`` is the 10-minute variant; ``--quick`` runs 3 minutes; the warm-up is a sixth of the run (at most 10
-min) and at least 75 simulated s (``SETTLE_SIM_S``). On the 2-core build machine: ``--quick --machines 250``.
+min), at least 75 simulated s (``SETTLE_SIM_S``), and at least the scorers' 300 s attribution rings where that is
+under 60 % of the run (not in --quick: it says what is still filling). On the 2-core build machine: ``--quick
+--machines 250``.
 """
 
 from __future__ import annotations
@@ -63,8 +65,13 @@ SETTLE_SIM_S = 75.0
 """Simulated s after which every fixed-size per-machine buffer but the web's timelines is full: the plant's 30 s
 history, the scorers' 12-window pools and the web's 12 windows of evidence (60 s), plus 15 s. The warm-up is at least
 this long (the quick run at first measured the plant's history filling: +1.2 GB at 1000 machines)."""
-WEB_TIMELINE_SIM_S = 1800.0
-"""Simulated s the web's timelines take to fill (360 windows per machine, ~80 B each: hydrowatch.web.live)."""
+FILLING_SIM_S = {
+    "scorers' attribution rings (60 windows per machine: hydrowatch.condition.degradation.ATTRIBUTION_WINDOWS)": 300.0,
+    "web's timelines (360 windows per machine, ~80 B each: hydrowatch.web.live)": 1800.0,
+}
+"""Bounded buffers that fill for longer than :data:`SETTLE_SIM_S`: what → simulated s. The default warm-up of a run
+longer than --quick covers the scorers' rings; the web's take 30 min. In-process the scorer's core grew 2 B per window
+once its ring was full (tracemalloc, 50 machines, 3,800 windows)."""
 SERVICES = ("router", "plant", "record-0", "record-1", "score-0", "score-1", "trainer", "web", "mlflow", "postgres")
 
 
@@ -259,10 +266,10 @@ def memory_table(args: argparse.Namespace, usage: UsageSampler, began: float, en
         print(f"{name:10} {at(began):>9.1f} {at(after):>12.1f} {at(middle):>8.1f} {at(ended):>8.1f} "
               f"{rss[steady].max() / 1e6:>8.1f} {trend.slope:>+9.1f} [{trend.low:>+7.1f}, {trend.high:>+7.1f}] "
               f"{verdicts[name]:>10} {cores:>6.2f}")
-    if args.warmup_minutes * 60.0 * args.speed < WEB_TIMELINE_SIM_S:
-        print(f"(web: its timelines fill until {WEB_TIMELINE_SIM_S:g} simulated s, "
-              f"{WEB_TIMELINE_SIM_S / args.speed / 60:g} min here: ~{args.machines * 360 * 80 / 1e6:.0f} MB in all, "
-              "by design)")
+    for what, fill_s in FILLING_SIM_S.items():
+        if args.warmup_minutes * 60.0 * args.speed < fill_s:
+            print(f"(still filling after the warm-up, by design: the {what}, until {fill_s:g} simulated s, "
+                  f"{fill_s / args.speed / 60:g} min here)")
     flat = all(v == "flat" for v in verdicts.values())
     print(f"memory flat after warm-up (every service's slope below {args.flat_mb_h:g} MB/h at 95 %): "
           f"{'yes' if flat else 'NO'}" + ("" if flat else " — " + ", ".join(
@@ -336,7 +343,8 @@ def main() -> None:
         args.minutes, args.interval = 3.0, 2.0
     settle = SETTLE_SIM_S / args.speed / 60.0
     if args.warmup_minutes is None:
-        args.warmup_minutes = max(settle, min(args.minutes / 6, 10.0))
+        rings = (min(FILLING_SIM_S.values()) + 15.0) / args.speed / 60.0  # the scorers' rings, where the run allows
+        args.warmup_minutes = max(settle, min(args.minutes / 6, 10.0), rings if rings < 0.6 * args.minutes else 0.0)
     if not settle <= args.warmup_minutes < args.minutes:
         parser.error(f"--warmup-minutes must be at least {settle:.2f} ({SETTLE_SIM_S:g} simulated s: fixed-size "
                      f"buffers fill) and shorter than --minutes ({args.minutes:g}); fewer machines at a higher "
