@@ -32,6 +32,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -139,6 +140,28 @@ def report(args, verdicts, samples, events, ended, load, exits, codes) -> None: 
     print("exit status at the end (SIGTERM): " + ", ".join(f"{h} {c}" for h, c in codes.items()))
 
 
+def add_topology_arguments(parser: argparse.ArgumentParser, kept: str) -> None:
+    """``--loopback``, ``--sqlite`` and ``--keep DIR`` (``kept``: what the folder keeps), for a benchmark of the
+    router topology."""
+    parser.add_argument("--loopback", action="store_true", help="hosts on loopback even where namespaces work")
+    parser.add_argument("--sqlite", action="store_true", help="MLflow on SQLite even where PostgreSQL is installed")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help=f"work in this new folder and keep it ({kept})")
+
+
+def run_topology(args: argparse.Namespace, run: Callable[[argparse.Namespace, Path], None], prefix: str) -> None:
+    """``run(args, work)`` in ``--keep``'s new folder or a temporary one, ``--loopback`` and ``--sqlite`` also set
+    where namespaces or PostgreSQL are not available here."""
+    args.loopback = args.loopback or namespaces_unavailable() is not None
+    args.sqlite = args.sqlite or postgres_unavailable() is not None
+    if args.keep is not None:
+        args.keep.mkdir(parents=True)
+        run(args, args.keep)
+        return
+    with tempfile.TemporaryDirectory(prefix=prefix) as work:
+        run(args, Path(work))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=6)
@@ -148,21 +171,11 @@ def main() -> None:
     parser.add_argument("--gap", type=float, default=20.0, help="from the router's return to the MLflow kill, s")
     parser.add_argument("--history", type=float, default=30.0, help="plant's history for recovery, s")
     parser.add_argument("--retrain", type=float, default=30.0, help="trainer's --every, s")
-    parser.add_argument("--loopback", action="store_true", help="hosts on loopback even where namespaces work")
-    parser.add_argument("--sqlite", action="store_true", help="MLflow on SQLite even where PostgreSQL is installed")
-    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
-                        help="work in this new folder and keep it (recordings, each service's log)")
+    add_topology_arguments(parser, "recordings, each service's log")
     args = parser.parse_args()
     if args.kill_at + 2 * args.down + args.gap >= args.seconds - 15:
         parser.error("--seconds must leave the MLflow server's restart 15 s before the end")
-    args.loopback = args.loopback or namespaces_unavailable() is not None
-    args.sqlite = args.sqlite or postgres_unavailable() is not None
-    if args.keep is not None:
-        args.keep.mkdir(parents=True)
-        run(args, args.keep)
-        return
-    with tempfile.TemporaryDirectory(prefix="bench-router-faults-") as work:
-        run(args, Path(work))
+    run_topology(args, run, "bench-router-faults-")
 
 
 if __name__ == "__main__":

@@ -61,6 +61,9 @@ class TopologySettings:
         Seconds between the trainer's trainings (its ``--every``).
     rotate_s : float
         Seconds after which a recorder closes a file (finished files are what the trainer reads).
+    flush_s : float
+        Seconds after which a recorder closes a chunk (its ``--flush``: 0.2 loses little to a kill; compose.yaml
+        keeps the recorder's default, 1).
     follow_s : float
         Seconds between the scorers' looks at the registry alias (``--follow-alias``).
     smoothing : int or None
@@ -85,6 +88,7 @@ class TopologySettings:
     history: float = 30.0
     retrain: float = 15.0
     rotate_s: float = 5.0
+    flush_s: float = 0.2
     follow_s: float = 2.0
     smoothing: int | None = None
     namespaces: bool = True
@@ -161,7 +165,7 @@ class Topology:
         }
         for i in range(2):
             found[f"record-{i}"] = ("record", ["--fleet", s.fleet, "--shard", f"{i}/2", "--out", str(self.recordings),
-                                               "--rotate-s", str(s.rotate_s), "--flush", "0.2", *bus])
+                                               "--rotate-s", str(s.rotate_s), "--flush", str(s.flush_s), *bus])
             smoothing = [] if s.smoothing is None else ["--smoothing", str(s.smoothing)]
             found[f"score-{i}"] = ("scorer", ["--fleet", s.fleet, "--shard", f"{i}/2", "--model", self.model_uri,
                                               "--follow-alias", str(s.follow_s), *smoothing, *tracking, *bus])
