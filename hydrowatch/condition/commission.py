@@ -338,25 +338,26 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     w = E.check_windows(np.asarray(windows, dtype=np.float64), features.window)
     ok = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
     seconds = float(ok.sum()) * min(features.hop, features.window) / SAMPLE_RATE_HZ
-    check_excitation(w[ok], seconds)
-    choice = identify_for_commissioning(features, w[ok])
+    valid = w[ok]
+    check_excitation(valid, seconds)
+    choice = identify_for_commissioning(features, valid)
     unit, supply = choice.fit, choice.supply
     present = _fault_present(features, unit)
     if present:
         raise CommissioningError(present)
-    moved = _moved(model, unit, w[ok], supply)
-    healthy, verdicts = _self_check(moved, w[ok])
+    moved = _moved(model, unit, valid, supply)
+    healthy, verdicts = _self_check(moved, valid)
     if healthy < MIN_HEALTHY and (supply == KEPT or choice.held_out is not None):
         # The halves disagreed and the chosen fit reads the unit's own healthy windows as a fault: the other choice
         # is kept if it reads the recording healthy (module docstring). For a kept supply that is the whole
         # recording's fit (the trained unit's pump or relief does not fit this one); for a whole fit the held-out
         # error preferred, the trained unit's supply.
-        args = (w[ok], features.nominal_, features.sensors, features.viscosity_coefficient)
-        other_fit, other_supply = ((pump_capacity(features, identify_unit(*args), w[ok]), WHOLE_FIT) if supply == KEPT
+        args = (valid, features.nominal_, features.sensors, features.viscosity_coefficient)
+        other_fit, other_supply = ((pump_capacity(features, identify_unit(*args), valid), WHOLE_FIT) if supply == KEPT
                                    else (identify_unit(*args, RESTRICTED_PARAMETERS), KEPT))
         if _fault_present(features, other_fit) is None:
-            other = _moved(model, other_fit, w[ok], other_supply)
-            share, other_verdicts = _self_check(other, w[ok])
+            other = _moved(model, other_fit, valid, other_supply)
+            share, other_verdicts = _self_check(other, valid)
             if share >= MIN_HEALTHY:
                 unit, supply, moved, healthy, verdicts = other_fit, other_supply, other, share, other_verdicts
     if healthy < MIN_HEALTHY:

@@ -183,8 +183,17 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     return residual
 
 
-def _signals(w: np.ndarray, viscosity_coefficient: float) -> _Signals:
-    """SI signals of valid raw windows (m, n, 4 or 5), the leakage factor from the oil temperature when present."""
+def _valid_signals(windows: np.ndarray, sensors: Sequence[str], viscosity_coefficient: float, what: str) -> _Signals:
+    """SI signals of the valid windows among raw ``windows`` (m, n, 4 or 5), the leakage factor from the oil
+    temperature when present; :class:`DataError` naming ``what`` with fewer than 2 valid windows."""
+    w = np.asarray(windows, dtype=np.float64)
+    if w.ndim != 3 or w.shape[2] not in (WIDTH, WIDTH + 1):
+        raise DataError(f"healthy windows must have shape (m, n, {WIDTH} or {WIDTH + 1}). Got {w.shape}.")
+    w = check_windows(w, w.shape[1])
+    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
+    if ok.sum() < 2:
+        raise DataError(f"{what} needs at least 2 valid healthy windows. Got {int(ok.sum())}.")
+    w = w[ok]
     leak = parity.leakage_factor(w[:, :, WIDTH] if w.shape[2] > WIDTH else None, w.shape[0], viscosity_coefficient)
     v, q, s, t = (w[:, :, CHANNELS.index(c)] for c in ("voltage", "flow", "speed", "torque"))
     return _Signals(v, q * LPM_TO_M3S, s, t, leak)
@@ -298,14 +307,7 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
         With fewer than 2 valid windows.
     """
     p = nominal if nominal is not None else PlantParameters()
-    w = np.asarray(windows, dtype=np.float64)
-    if w.ndim != 3 or w.shape[2] not in (4, 5):
-        raise DataError(f"healthy windows must have shape (m, n, 4 or 5). Got {w.shape}.")
-    w = check_windows(w, w.shape[1])
-    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
-    if ok.sum() < 2:
-        raise DataError(f"identifying a unit needs at least 2 valid healthy windows. Got {int(ok.sum())}.")
-    s = _signals(w[ok], viscosity_coefficient)
+    s = _valid_signals(windows, sensors, viscosity_coefficient, "identifying a unit")
     have = set(sensors)
     fit = UnitFit(p, windows=int(s.flow.shape[0]))
     plan: list[tuple[str, set[str], Callable[[_Signals], Relation], _Signals]] = [
@@ -341,14 +343,10 @@ def valve_error(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] 
     DataError
         With fewer than 2 valid windows, or without the flow, speed and torque the relation needs.
     """
-    w = check_windows(np.asarray(windows, dtype=np.float64), np.asarray(windows).shape[1])
     missing = {"flow", "speed", "torque"} - set(sensors)
     if missing:
         raise DataError(f"the valve relation needs flow, speed and torque. Missing: {', '.join(sorted(missing))}.")
-    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
-    if ok.sum() < 2:
-        raise DataError(f"a held-out error needs at least 2 valid windows. Got {int(ok.sum())}.")
-    residual, _ = _valve_relation(_signals(w[ok], viscosity_coefficient))
+    residual, _ = _valve_relation(_valid_signals(windows, sensors, viscosity_coefficient, "a held-out error"))
     return float(np.mean(residual(p) ** 2))
 
 
@@ -366,11 +364,7 @@ def drawn_flow(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] =
     A healthy recording that never drives the pump to its limit leaves Dp to its prior; this is what it does tell:
     a lower bound on the pump's capacity (:func:`hydrowatch.condition.commission.identify_for_commissioning`).
     """
-    w = check_windows(np.asarray(windows, dtype=np.float64), np.asarray(windows).shape[1])
-    ok = np.array([r is None for r in invalid_reasons(w, sensors)], dtype=bool)
-    if ok.sum() < 1:
-        raise DataError("the pump's draw needs at least 1 valid window. Got 0.")
-    s = _signals(w[ok], viscosity_coefficient)
+    s = _valid_signals(windows, sensors, viscosity_coefficient, "the pump's draw")
     pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
     leakage = (p.Cp + p.Cpl + p.Cvl) * s.leak.reshape(-1)
     ps, _ = parity.supply_and_valve_flow(p.Kq * parity.spool_position(s.voltage, p), pl, p, leakage,

@@ -66,12 +66,18 @@ def train_and_track(
             tags={"method": settings.method, "reference": settings.name, "bundle_version": result.bundle.version},
             started_s=started, columns=RUNS_TABLE_COLUMNS,
         )
-    summary = {**result.summary(), "out": str(out), "run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"],
-               "model_uri": logged["model_uri"], "registered_version": logged["version"],
-               "runs_url": logged["runs_url"]}
+    summary = {**result.summary(), "out": str(out), **logged_fields(logged)}
     if checks:
         summary["checks"] = {a["command"]: a["accuracy"] for a in checks}
     return result, summary
+
+
+def logged_fields(logged: dict[str, Any]) -> dict[str, Any]:
+    """What ``hydrowatch train``'s JSON summary says of the MLflow run, from
+    :func:`~hydrowatch.training.tracking.log_training`'s answer: ``run_id``, ``tracking_uri``, ``model_uri``,
+    ``registered_version``, ``runs_url``."""
+    return {"run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"], "model_uri": logged["model_uri"],
+            "registered_version": logged["version"], "runs_url": logged["runs_url"]}
 
 
 def train_each(

@@ -25,6 +25,7 @@ from hydrowatch.results import TrainingResult
 from hydrowatch.rig.description import rig_text
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME, TrainingSettings
+from hydrowatch.training.pipeline import logged_fields
 from hydrowatch.training.tracking import log_training
 
 
@@ -76,8 +77,7 @@ def train_rig_and_track(
     components = {c: {k: f[k] for k in ("accuracy", "macro_f1", "unknown", "features")}
                   for c, f in result.evaluation["components"].items()}
     summary = {**result.summary(), "rig": description.name, "components": components, "out": str(out),
-               "run_id": logged["run_id"], "tracking_uri": logged["tracking_uri"], "model_uri": logged["model_uri"],
-               "registered_version": logged["version"], "runs_url": logged["runs_url"]}
+               **logged_fields(logged)}
     return result, summary
 
 
