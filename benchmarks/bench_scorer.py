@@ -6,7 +6,9 @@ The measured path is the scorer service's inner loop without the network: decode
 :meth:`OnlineScorer.update` (entropy: delay lines, batched one-step predictions per sensor,
 windows, relative entropies, classifier, open-set rule; parity: the fleet-wide window array,
 windows judged by the condition model as they close, pooled over ``--smoothing`` windows) and
-building the ``health`` and ``kl`` messages of closed windows.
+building the ``health`` and ``kl`` messages of closed windows (with ``--expected on|both``, also what the model
+expected each sensor to read, ``OnlineScorer(expected=True)``, and its ``expected_window`` message, encoded: the cost
+the scorer's ``…/expected`` adds, issue 16).
 Reference (issue 5): 1000 machines, i.e. 200,000 samples/s, a verdict latency p99 < 100 ms at
 that load, and < 1 MB per machine.
 
@@ -30,7 +32,7 @@ Memory per machine: tracemalloc of what the scorer holds after 100 machines were
 
     python benchmarks/bench_scorer.py [--machines 1000] [--seconds 12] [--method parity|entropy|both]
                                       [--reference narx|bj] [--smoothing 1 12]
-                                      [--fleet staggered|synchronised|both]
+                                      [--fleet staggered|synchronised|both] [--expected off|on|both]
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ from hydrowatch.io.codec import decode_batch, encode_batch, sensor_chunk_from_ar
 from hydrowatch.plant.fleet import simulate_states
 from hydrowatch.schemas import SENSOR_CHUNK
 from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.training.messages import kl_batch, verdict_batch
+from hydrowatch.training.messages import expected_batch, kl_batch, verdict_batch
 from hydrowatch.training.online import OnlineScorer, chunks_from_batches
 from hydrowatch.training.options import DEFAULT_NARX, TrainingSettings
 from hydrowatch.training.trainer import train
@@ -99,13 +101,18 @@ def _payloads(machines: int, seconds: float) -> list[list[tuple[str, bytes]]]:
 
 
 def _step(scorer: OnlineScorer, bundle: ModelBundle, step: list[tuple[str, bytes]]) -> tuple[int, int]:
-    """The service's work for one tick: decode, read the columns, update, encode the messages; (chunks, verdicts)."""
+    """The service's work for one tick: decode, read the columns, update, build the messages (and encode the
+    ``expected_window`` ones, when the scorer gives them); (chunks, verdicts)."""
     batches = [decode_batch(payload, SENSOR_CHUNK) for _, payload in step]
     chunks = chunks_from_batches([m for m, _ in step], batches, scorer.columns)
     out = scorer.update(chunks)
     for v in out:
         verdict_batch(v, bundle.version)
         kl_batch(v, bundle.kl_rows, bundle.states, bundle.version)
+        if v.expected is not None:
+            expected = expected_batch(v, bundle.version)
+            if expected is not None:
+                encode_batch(expected)
     return len(chunks), len(out)
 
 
@@ -120,15 +127,16 @@ def _live(payloads: list[list[tuple[str, bytes]]], phases: int, stagger: bool, m
 
 
 def measure(bundle: ModelBundle, payloads: list[list[tuple[str, bytes]]], stagger: bool,
-            smoothing: int = 1, phased: bool = False) -> Figures:
+            smoothing: int = 1, phased: bool = False, expected: bool = False) -> Figures:
     """Run the scorer's inner loop over the payloads; only steady-state steps are timed when staggered.
 
-    ``phased``: the scorer staggers the windows itself (``OnlineScorer(stagger=True)``).
+    ``phased``: the scorer staggers the windows itself (``OnlineScorer(stagger=True)``); ``expected``: it also gives
+    what the model expected of each window (``OnlineScorer(expected=True)``, the scorer's default).
     """
     phases = bundle.window // CHUNK
     steps = _live(payloads, phases, stagger)
     first = phases if stagger or phased else 0  # phased: the first window of each machine starts within 5 s
-    scorer = OnlineScorer(bundle, smoothing=smoothing, stagger=phased)
+    scorer = OnlineScorer(bundle, smoothing=smoothing, stagger=phased, expected=expected)
     freeze_heap()  # as the scorer service does once its model is loaded
     cpu_lat, wall_lat, verdicts, cpu, wall, samples = [], [], 0, 0.0, 0.0, 0
     for k, step in enumerate(steps):
@@ -141,14 +149,14 @@ def measure(bundle: ModelBundle, payloads: list[list[tuple[str, bytes]]], stagge
                 cpu_lat.append(c1)
                 wall_lat.append(w1)
     return Figures(samples / cpu, samples / wall, verdicts, cpu_lat, wall_lat,
-                   _memory(bundle, payloads, smoothing))
+                   _memory(bundle, payloads, smoothing, expected))
 
 
-def _memory(bundle: ModelBundle, payloads: list[list[tuple[str, bytes]]], smoothing: int,
+def _memory(bundle: ModelBundle, payloads: list[list[tuple[str, bytes]]], smoothing: int, expected: bool,
             machines: int = MEMORY_MACHINES) -> float:
     """Bytes per machine the scorer holds (tracemalloc) after every step fed to ``machines`` machines."""
     tracemalloc.start()
-    scorer = OnlineScorer(bundle, smoothing=smoothing)
+    scorer = OnlineScorer(bundle, smoothing=smoothing, expected=expected)
     base = tracemalloc.get_traced_memory()[0]
     for step in _live(payloads, 1, False, machines):
         _step(scorer, bundle, step)
@@ -182,6 +190,8 @@ def main() -> None:
     parser.add_argument("--smoothing", type=int, nargs="+", default=[1, 12],
                         help="parity: windows pooled per verdict, one run each (default 1 12)")
     parser.add_argument("--fleet", choices=("staggered", "synchronised", "both"), default="both")
+    parser.add_argument("--expected", choices=("off", "on", "both"), default="off",
+                        help="the scorer also gives each window's expected sensors (…/expected); both: each run twice")
     args = parser.parse_args()
     torch.set_num_threads(1)
     payloads = _payloads(args.machines, args.seconds)
@@ -193,12 +203,15 @@ def main() -> None:
     for method in methods:
         bundle = _bundle(method, args.reference)
         for smoothing in args.smoothing if method == "parity" else [1]:
-            name = f"parity, smoothing {smoothing}" if method == "parity" else f"entropy/{args.reference}"
-            for stagger in fleets:
-                report(name, measure(bundle, payloads, stagger, smoothing), "staggered" if stagger else "synchronised")
-            if method == "parity" and False in fleets:
-                report(name, measure(bundle, payloads, False, smoothing, phased=True),
-                       "synchronised, scorer --stagger: windows start at a phase per machine")
+            for expected in {"off": [False], "on": [True], "both": [False, True]}[args.expected]:
+                name = f"parity, smoothing {smoothing}" if method == "parity" else f"entropy/{args.reference}"
+                name += ", --expected" if expected else ""
+                for stagger in fleets:
+                    report(name, measure(bundle, payloads, stagger, smoothing, expected=expected),
+                           "staggered" if stagger else "synchronised")
+                if method == "parity" and False in fleets:
+                    report(name, measure(bundle, payloads, False, smoothing, phased=True, expected=expected),
+                           "synchronised, scorer --stagger: windows start at a phase per machine")
 
 
 if __name__ == "__main__":

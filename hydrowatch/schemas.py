@@ -328,8 +328,11 @@ STATUS = schema_by_name("status")
 """Heartbeat of a service: status string and message counters."""
 FORECAST = schema_by_name("forecast")
 """When each part of one machine will reach the alert, one row per part (the scorer, every few windows)."""
+EXPECTED_WINDOW = schema_by_name("expected_window")
+"""What the model expected one window's sensors to read, beside what they read, one row per sensor (chart points)."""
 
 __all__ = [
+    "EXPECTED_WINDOW",
     "FORECAST",
     "HEALTH_VERDICT",
     "KL_WINDOW",

@@ -11,7 +11,7 @@ from typing import NamedTuple
 from hydrowatch.errors import DataError, ParameterError
 
 PREFIX = "hydro"
-TOPICS: tuple[str, ...] = ("sensors", "kl", "health", "status", "forecast")
+TOPICS: tuple[str, ...] = ("sensors", "kl", "health", "status", "forecast", "expected")
 """Topics of the contract, the last chunk of every key."""
 
 _FORBIDDEN = set("/*$?#@ ")

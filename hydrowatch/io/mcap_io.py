@@ -45,6 +45,7 @@ TOPIC_KINDS: dict[str, str] = {
     "health": "health_verdict",
     "status": "status",
     "forecast": "forecast",
+    "expected": "expected_window",
 }
 """Last part of a key expression → schema name."""
 

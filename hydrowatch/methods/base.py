@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkab
 import numpy as np
 
 from hydrowatch.errors import DataError, ParameterError
+from hydrowatch.expected import ExpectedWindow
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import INPUT, SENSORS, Recording
 from hydrowatch.verdict import Verdict
@@ -180,6 +181,24 @@ class StreamEngine(WindowJudge, Protocol):
     def values(self, x: np.ndarray, states: Sequence[Any]) -> np.ndarray:
         """Values (M, n, width) of M machines' segments x (M, n, n_columns), NaN while warming up; updates
         ``states``."""
+        ...
+
+
+@runtime_checkable
+class ExpectsSensors(Protocol):
+    """A streaming part (:class:`WindowJudge` or :class:`StreamEngine`) that can also say what its model expected a
+    closed window's sensors to read (the parity relations' outputs, the reference models' one-step predictions):
+    the fleet driver calls :meth:`expect` once, before it reads ``width``, and then asks it for the windows it judged
+    (when the scorer publishes ``…/expected``)."""
+
+    def expect(self) -> None:
+        """Get ready to be asked :meth:`expected` (a stream engine then keeps each sensor's measured samples beside
+        its values in the windows: its ``width`` grows); without this call a window holds only what judging needs."""
+        ...
+
+    def expected(self, raw: np.ndarray, machines: Sequence[str]) -> Sequence[ExpectedWindow | None]:
+        """Per closed window ``raw`` (m, window, width) of ``machines``, measured and expected points of each sensor
+        the model predicts (:class:`hydrowatch.expected.ExpectedSensor`), or None for a window it cannot judge."""
         ...
 
 

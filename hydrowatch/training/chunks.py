@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from hydrowatch.expected import ExpectedWindow
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from hydrowatch.verdict import INVALID, Verdict
 
@@ -152,6 +153,9 @@ class WindowVerdict:
         Degradation index per part, ``{fault: {"value", "ci95": [lo, hi], "measured"}}`` (parity method, valid
         windows; :meth:`hydrowatch.condition.degradation.Degradation.window`; ``measured`` False where a valve-side
         look-alike was blamed), None otherwise.
+    expected : dict or None
+        What the model expected each sensor to read, beside what it read (:class:`hydrowatch.expected.ExpectedSensor`
+        by sensor), when the driver was asked for it and the method predicts sensors; None otherwise.
     """
 
     machine: str
@@ -160,6 +164,7 @@ class WindowVerdict:
     verdict: Verdict
     scores: np.ndarray | None = None
     degradation: dict[str, dict[str, Any]] | None = None
+    expected: ExpectedWindow | None = None
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""Bus messages of the scorer: ``kl_window``, ``health_verdict`` and ``forecast`` record batches (schemas/)."""
+"""Bus messages of the scorer: ``kl_window``, ``health_verdict``, ``forecast`` and ``expected_window`` record batches
+(schemas/)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ from collections.abc import Sequence
 import numpy as np
 import pyarrow as pa
 
-from hydrowatch.schemas import FORECAST, HEALTH_VERDICT, KL_WINDOW, wire_schema
+from hydrowatch.channels import PLANT
+from hydrowatch.recording import SAMPLE_RATE_HZ
+from hydrowatch.schemas import EXPECTED_WINDOW, FORECAST, HEALTH_VERDICT, KL_WINDOW, wire_schema
 from hydrowatch.training.forecasts import MachineForecast
 from hydrowatch.training.online import WindowVerdict
 from hydrowatch.verdict import INVALID, UNKNOWN
@@ -68,3 +71,22 @@ def forecast_batch(item: MachineForecast, model_version: str) -> pa.RecordBatch:
         "history_windows": [item.history_windows] * n, "model_version": [model_version] * n,
     }
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(FORECAST))
+
+
+def expected_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch | None:
+    """The ``expected_window`` rows (one per sensor the model predicts) of a judged window; None when it has none
+    (an invalid window, a method that predicts no sensor, or a scorer not asked for them)."""
+    found = item.expected
+    if not found or item.verdict.state == INVALID:
+        return None
+    sensors = list(found)
+    n = len(sensors)
+    row = {
+        "window_start": [item.start_s] * n, "window_end": [item.end_s] * n, "sensor": sensors,
+        "unit": [PLANT.units.get(s, "") for s in sensors],
+        "step": [found[s].step / SAMPLE_RATE_HZ for s in sensors],
+        "measured": [np.asarray(found[s].measured, dtype=np.float32) for s in sensors],
+        "expected": [np.asarray(found[s].expected, dtype=np.float32) for s in sensors],
+        "source": [found[s].source for s in sensors], "model_version": [model_version] * n,
+    }
+    return pa.RecordBatch.from_pydict(row, schema=wire_schema(EXPECTED_WINDOW))

@@ -51,17 +51,20 @@ class OnlineScorer:
         do not close their windows in the same update (methods with a warm-up are not staggered).
     unit_method : callable, optional
         Machine → its commissioned method (:attr:`ModelBundle.health_method` of its commissioning) or None.
+    expected : bool, default False
+        Give each judged window what the model expected its sensors to read (``WindowVerdict.expected``), for
+        methods that predict them (parity, entropy; :class:`~hydrowatch.methods.base.ExpectsSensors`).
     """
 
     def __init__(self, bundle: ModelBundle, *, smoothing: int = 1, batch: int = 64, stagger: bool = False,
-                 unit_method: Callable[[str], HealthMethod | None] | None = None) -> None:
+                 unit_method: Callable[[str], HealthMethod | None] | None = None, expected: bool = False) -> None:
         self.bundle = bundle
         self.smoothing = smoothing
         method = bundle.health_method
         if smoothing != 1 and not method.pools:
             refuse_smoothing(method.name, smoothing)
         self._fleet = WindowFleet(method.online(smoothing=smoothing, unit_method=unit_method), batch=batch,
-                                  stagger=stagger)
+                                  stagger=stagger, expected=expected)
 
     @property
     def samples(self) -> int:

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.errors import ParameterError
-from hydrowatch.methods.base import StreamEngine, WindowJudge
+from hydrowatch.methods.base import ExpectsSensors, StreamEngine, WindowJudge
 from hydrowatch.training.chunks import (
     DT,
     Break,
@@ -78,11 +78,17 @@ class WindowFleet:
         close their windows spread over the hop instead of all in one update (the judging work of
         the whole fleet at once), at the price of up to one hop of samples unjudged after each
         (re)start. False: windows start at the stream's first sample (as batch scoring does).
+    expected : bool, default False
+        Also ask a judge that predicts the sensors (:class:`~hydrowatch.methods.base.ExpectsSensors`) what it
+        expected of each window it judged (``WindowVerdict.expected``; the scorer's ``…/expected`` messages).
     """
 
-    def __init__(self, judge: WindowJudge, *, batch: int = 64, stagger: bool = False) -> None:
+    def __init__(self, judge: WindowJudge, *, batch: int = 64, stagger: bool = False, expected: bool = False) -> None:
         if int(batch) != batch or batch < 1:
             raise ParameterError(f"batch must be an integer >= 1. Got {batch!r}; 64 is the default.")
+        self.expects = judge if expected and isinstance(judge, ExpectsSensors) else None
+        if self.expects is not None:
+            self.expects.expect()  # before the width is read: a stream engine's grows
         self.judge, self.columns, self.defaults = judge, list(judge.columns), dict(judge.defaults)
         self.window, self.hop = judge.window, judge.hop
         self.engine = judge if isinstance(judge, StreamEngine) else None
@@ -313,8 +319,10 @@ class WindowFleet:
         out = []
         for lo in range(0, len(closed), self.batch):
             part = closed[lo:lo + self.batch]
-            judged = self.judge.judge(np.stack([c.samples for c in part]), [self._names[c.slot] for c in part])
-            for c, item in zip(part, judged):  # a judge may add each window's degradation index
+            raw, names = np.stack([c.samples for c in part]), [self._names[c.slot] for c in part]
+            judged = self.judge.judge(raw, names)
+            expected = self.expects.expected(raw, names) if self.expects is not None else [None] * len(part)
+            for c, item, seen in zip(part, judged, expected):  # a judge may add each window's degradation index
                 out.append(WindowVerdict(self._names[c.slot], c.t0 + c.start * DT, c.t0 + (c.start + self.window) * DT,
-                                         item[0], item[1], item[2] if len(item) > 2 else None))
+                                         item[0], item[1], item[2] if len(item) > 2 else None, seen))
         return out

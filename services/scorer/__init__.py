@@ -4,12 +4,14 @@ Subscribes to ``hydro/<fleet>/*/sensors`` (``--shard i/n``: only that shard's ma
 machine's window (:class:`hydrowatch.training.online.OnlineScorer`: parity bundles a row of raw
 samples and, with ``--smoothing N``, the evidence of its last N windows; entropy bundles the
 reference models' delay lines), batched across machines, and publishes
-``hydro/<fleet>/<machine>/kl`` and ``…/health`` (the pooled verdict) for every window that
-closes; for methods with a degradation index (parity), ``…/forecast`` every ``--forecast-every`` windows of a
-machine, from its last ``--forecast-history`` seconds of windows (:class:`hydrowatch.training.forecasts.
-FleetForecasts`). A chunk missing from a machine's stream is first asked for from the publisher's history
-(:mod:`hydrowatch.bus.recovery`; the machine's newer chunks wait meanwhile, at most 2 s); gaps
-that stay, NaN, late or out-of-order chunks make the window in progress ``invalid`` with its reason.
+``hydro/<fleet>/<machine>/kl``, ``…/health`` (the pooled verdict) and, for methods that predict the sensors
+(parity, entropy), ``…/expected`` (what the model expected each sensor to read, beside what it read, 50 points per
+window; ``--no-expected``: none) for every window that closes; for methods with a degradation index (parity),
+``…/forecast`` every ``--forecast-every`` windows of a machine, from its last ``--forecast-history`` seconds
+of windows (:class:`hydrowatch.training.forecasts.FleetForecasts`). A chunk missing from a machine's stream is
+first asked for from the publisher's history (:mod:`hydrowatch.bus.recovery`; the machine's newer chunks wait
+meanwhile, at most 2 s); gaps that stay, NaN, late or out-of-order chunks make the window in progress ``invalid``
+with its reason.
 The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
 ``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
 when it moves; an alias that does not exist yet is waited for. SIGINT/SIGTERM drains and exits.
@@ -52,8 +54,8 @@ if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, n
     from hydrowatch.training.online import ChunkBatch, OnlineScorer, WindowVerdict
 
 NAME = "scorer"
-HELP = ("score sensor chunks online: publish relative entropies (…/kl) and verdicts (…/health) per window, and each "
-        "machine's forecast (…/forecast) every few windows")
+HELP = ("score sensor chunks online: publish relative entropies (…/kl), verdicts (…/health) and the sensors the model "
+        "expected (…/expected) per window, and each machine's forecast (…/forecast) every few windows")
 DEFAULT_MODEL = "models:/hydrowatch@champion"
 log = get_logger("services.scorer")
 
@@ -92,6 +94,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--forecast-history", type=float, default=7200.0, metavar="SECONDS",
                         help="seconds of each machine's windows a forecast rests on (default 7200: 46 kB per machine; "
                              "a forecast reaches at most 10x this ahead)")
+    parser.add_argument("--expected", action=argparse.BooleanOptionalAction, default=True,
+                        help="methods that predict the sensors (parity, entropy): publish each window's measured and "
+                             "expected sensors (…/expected, 50 points per sensor; the web page's chart; default on, "
+                             "~0.1-0.2 ms and ~1.2 kB per window; --no-expected: none)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after this many wall-clock seconds")
     add_bus_arguments(parser)
 
@@ -192,7 +198,7 @@ class _Units:
 
 def _publish(publisher: Publisher, units: _Units, verdicts: list[WindowVerdict],
              forecasts: FleetForecasts | None) -> None:
-    from hydrowatch.training.messages import forecast_batch, kl_batch, verdict_batch
+    from hydrowatch.training.messages import expected_batch, forecast_batch, kl_batch, verdict_batch
 
     for item in verdicts:
         fleet, machine = item.machine.split("/", 1)
@@ -201,6 +207,9 @@ def _publish(publisher: Publisher, units: _Units, verdicts: list[WindowVerdict],
         if kl is not None:
             publisher.put(key(fleet, machine, "kl"), kl)
         publisher.put(key(fleet, machine, "health"), verdict_batch(item, bundle.version))
+        expected = expected_batch(item, bundle.version)
+        if expected is not None:
+            publisher.put(key(fleet, machine, "expected"), expected)
     for due in forecasts.update(verdicts) if forecasts is not None else ():
         fleet, machine = due.machine.split("/", 1)
         publisher.put(key(fleet, machine, "forecast"), forecast_batch(due, units.bundle(due.machine).version))
@@ -228,7 +237,7 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
     # a method that does not pool (entropy) judges each window alone, whatever --smoothing says
     pools = model.bundle.health_method.pools
     return OnlineScorer(model.bundle, smoothing=smoothing_for(model.bundle, args.smoothing) if pools else 1,
-                        stagger=args.stagger, unit_method=units.unit_method())
+                        stagger=args.stagger, unit_method=units.unit_method(), expected=args.expected)
 
 
 def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | None:

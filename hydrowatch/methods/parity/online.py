@@ -13,7 +13,9 @@ it, has it unknown (NaN, not a break: the leak boxes widened by the oil's range,
 :mod:`hydrowatch.condition.oil`). A sensor the model does not read (trained on a subset) is NaN when a
 chunk lacks it, never a break: the relations fill it.
 
-Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested).
+Verdicts equal :meth:`ConditionModel.judge` of the same windows, pooled or not (tested). Asked (the scorer's
+``…/expected``), :meth:`ParityJudge.expected` gives what each machine's healthy unit expected its sensors to read
+(:mod:`hydrowatch.condition.predictions`).
 """
 
 from __future__ import annotations
@@ -28,8 +30,10 @@ from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
 from hydrowatch.condition.estimates import TEMPERATURE, WIDTH, ParityEstimates
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.oil import temperature_known
+from hydrowatch.condition.predictions import expected_sensors
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
+from hydrowatch.expected import ExpectedWindow
 from hydrowatch.verdict import Verdict
 
 UNKNOWN_TEMPERATURE = float("nan")
@@ -123,6 +127,21 @@ class ParityJudge:
         for maybe, s, index in zip(verdicts, band, indices):
             assert maybe is not None
             out.append((maybe, s.reshape(self.shape), index))
+        return out
+
+    def expect(self) -> None:
+        """Nothing to get ready: the raw windows hold every sensor as measured."""
+
+    def expected(self, raw: np.ndarray, machines: Sequence[str]) -> list[ExpectedWindow | None]:
+        """What each machine's (commissioned) healthy unit expected the sensors of its closed window ``raw`` (m,
+        window, n_columns) to read (:func:`~hydrowatch.condition.predictions.expected_sensors`); None where the
+        window cannot be judged."""
+        models = self._models(machines)
+        out: list[ExpectedWindow | None] = [None] * len(raw)
+        for model in {id(m): m for m in models}.values():
+            mine = np.flatnonzero([m is model for m in models])
+            for i, found in zip(mine.tolist(), expected_sensors(model.features_, raw[mine])):
+                out[i] = found
         return out
 
     def _degradation(self, model: ConditionModel, machines: Sequence[str], valid: np.ndarray,
