@@ -19,7 +19,8 @@ the machine lacks, has no expectation. Windows that cannot be judged (NaN, a stu
 Measured on 12 s per state (seed 3, 3 sensors, nominal parameters): on healthy windows the 0.1 s means of the
 expected signals are within 1–5 % (RMS, of the measured signal's standard deviation) of the measured ones; a
 load alert puts the torque 8–9 standard deviations off, a motor leak the speed 1.1–1.3, a pump leak the flow
-3.0–3.1, each in its own sensor only. Cost: 0.1–0.2 ms per window (the supply line's integration, compiled).
+3.0–3.1, each in its own sensor only. Cost: 0.22–0.27 ms per window in batches of 64, 8–10 % of judging it
+(``benchmarks/bench_expected.py``).
 """
 
 from __future__ import annotations
