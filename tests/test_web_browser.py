@@ -2,21 +2,24 @@
 
 Every machine appears with the state the plant gives it, a fault that appears in the fleet (the plant
 restarted with one machine faulty) shows up without a reload, and a machine page opens from the fleet page
-with its verdict, timeline, evidence and measured sensors.
+with its verdict, timeline, evidence, its sensors against what the model expected, and its measured sensors.
 Skipped where no Chromium is installed (``make test`` installs Debian's ``chromium`` where apt is available).
 Set ``HYDROWATCH_SCREENSHOTS=docs`` to write the screenshots of docs/web.md.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hydrowatch.web.browser import Chromium, find_chromium
@@ -123,6 +126,23 @@ def test_the_fleet_page_shows_every_machine_and_a_new_fault_without_reload(
         assert browser.wait_for("document.querySelectorAll('#evidence table.heat td').length", timeout=10) > 0
         # its sensors are followed while the page is open: measured samples arrive on the page
         assert browser.wait_for("document.querySelectorAll('#sensors svg path').length", timeout=20) >= 4
+        # and what the model expected of its last windows, beside what was measured (…/expected): a chart per sensor
+        # with two lines, the load alert's torque far above what the healthy unit's load relation asks
+        assert browser.wait_for("document.querySelectorAll('#expected svg').length", timeout=30) == 3
+        assert browser.evaluate("[...document.querySelectorAll('#expected .sensor')].map(e => e.dataset.sensor)"
+                                ".join()") == "flow,speed,torque"
+        assert browser.evaluate("[...document.querySelectorAll('#expected svg')].map(s => [...s.querySelectorAll("
+                                "'path')].filter(p => (p.getAttribute('d').match(/L/g) || []).length >= 40).length)"
+                                ) == [2, 2, 2]
+        assert browser.evaluate("document.getElementById('x-legend').textContent") == "measuredexpected"
+        lines = json.loads(urllib.request.urlopen(url + "api/machine?id=wf/m001", timeout=10).read())["expected"]
+        assert {n: line["source"] for n, line in lines.items()} == {
+            "flow": "valve relation", "speed": "motor relation", "torque": "load relation"}
+        torque, flow = lines["torque"], lines["flow"]
+        assert np.nanmean(np.array(torque["measured"], dtype=float)) > 1.5 * np.nanmean(
+            np.array(torque["expected"], dtype=float))
+        assert np.nanmean(np.abs(np.array(flow["measured"], dtype=float) - np.array(flow["expected"], dtype=float))
+                          ) < 0.1 * np.nanmean(np.array(flow["measured"], dtype=float))
         browser.screenshot(shots / "web-machine.png", full_page=True, palette=True)
         assert browser.exceptions() == []
 

@@ -99,8 +99,37 @@ def test_a_degradation_index_that_a_verdict_carries_is_shown() -> None:
 
 
 def test_history_and_evidence_must_be_positive() -> None:
-    with pytest.raises(ParameterError, match="history and evidence must be >= 1"):
+    with pytest.raises(ParameterError, match="history, evidence and expected_windows must be >= 1"):
         FleetLive(history=0)
+    with pytest.raises(ParameterError, match="Got 360, 12 and 0"):
+        FleetLive(expected_windows=0)
+
+
+def _expected_rows(start: float, level: float) -> list[dict]:
+    """One ``expected_window`` message's rows (as ``to_pylist`` gives them): 50 points of 0.1 s per sensor."""
+    return [{"window_start": start, "window_end": start + 5.0, "sensor": s, "unit": u, "step": 0.1,
+             "measured": [level + 0.1 * i for i in range(50)], "expected": [level] * 50, "source": f"{s} source",
+             "model_version": "v"} for s, u in (("flow", "L/min"), ("torque", "N·m"))]
+
+
+def test_the_machine_keeps_its_last_windows_of_measured_and_expected_sensors() -> None:
+    live = FleetLive(expected_windows=2)
+    live.add_verdict("f1", "m0", verdict(0.0, "healthy"))
+    assert live.machine("f1/m0")["expected"] is None
+    seq = live.seq
+    for start in (0.0, 5.0, 10.0, 20.0):  # three windows in a row, then one after a missing window
+        live.add_expected("f1", "m0", _expected_rows(start, start))
+    assert live.seq == seq + 4 and live.changed(seq) == {"f1/m0"}
+    x = live.machine("f1/m0")["expected"]
+    assert set(x) == {"flow", "torque"} and x["torque"]["unit"] == "N·m" and x["flow"]["source"] == "flow source"
+    flow = x["flow"]
+    assert len(flow["t"]) == len(flow["measured"]) == len(flow["expected"]) == 2 * 50 + 1  # the last 2, a break
+    assert flow["t"][0] == pytest.approx(10.05) and flow["t"][-1] == pytest.approx(24.95)
+    assert flow["measured"][50] is None and flow["expected"][50] is None and flow["t"][50] == pytest.approx(17.5)
+    assert flow["measured"][49] == pytest.approx(14.9) and flow["expected"][51] == 20.0
+    live.add_expected("f1", "m0", _expected_rows(0.0, 1.0))  # a restarted stream: its time starts again
+    assert live.machine("f1/m0")["expected"]["flow"]["t"][0] == pytest.approx(0.05)
+    assert len(live.machine("f1/m0")["expected"]["flow"]["t"]) == 50
 
 
 def test_a_page_gets_a_snapshot_then_only_what_changed(live: FleetLive) -> None:

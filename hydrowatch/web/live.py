@@ -25,6 +25,7 @@ import numpy as np
 from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
 from hydrowatch.report.fleet_table import HEALTHY, LEVELS, FleetTable, MachineRow, urgency, wear_parts
+from hydrowatch.web.traces import ExpectedTrace
 
 UNITS = PLANT.units
 """Unit of each channel the plant (and the study's rig) publishes."""
@@ -93,6 +94,7 @@ class _Machine:
     timeline: Timeline
     evidence: deque[dict[str, Any]]
     sensors: deque[tuple[np.ndarray, dict[str, np.ndarray]]]
+    expected: ExpectedTrace
     published_ms: float | None = None
     model_version: str | None = None
     degradation: dict[str, Any] | None = None
@@ -114,6 +116,9 @@ class FleetLive:
         of the scorer's 5 s windows).
     sensor_points : int
         Most samples per channel a machine page is sent (evenly thinned; default 500).
+    expected_windows : int
+        Windows of measured and expected sensors (``expected_window`` messages) kept per machine that
+        :meth:`add_expected` is given (default 6: 30 s).
 
     Attributes
     ----------
@@ -122,9 +127,10 @@ class FleetLive:
     """
 
     def __init__(self, *, history: int = 360, evidence: int = 12, sensor_seconds: float = 10.0,
-                 sensor_points: int = 500) -> None:
-        if history < 1 or evidence < 1:
-            raise ParameterError(f"history and evidence must be >= 1. Got {history} and {evidence}.")
+                 sensor_points: int = 500, expected_windows: int = 6) -> None:
+        if history < 1 or evidence < 1 or expected_windows < 1:
+            raise ParameterError(f"history, evidence and expected_windows must be >= 1. Got {history}, {evidence} and "
+                                 f"{expected_windows}.")
         if not sensor_seconds > 0 or sensor_points < 2:
             raise ParameterError(f"sensor_seconds must be > 0 and sensor_points >= 2. Got {sensor_seconds} and "
                                  f"{sensor_points}.")
@@ -132,6 +138,7 @@ class FleetLive:
         self.evidence = evidence
         self.sensor_seconds = sensor_seconds
         self.sensor_points = sensor_points
+        self.expected_windows = expected_windows
         self.seq = 0
         self._table = FleetTable()
         self._machines: dict[str, _Machine] = {}
@@ -143,7 +150,8 @@ class FleetLive:
         found = self._machines.get(ident)
         if found is None:
             found = self._machines[ident] = _Machine(fleet, machine, Timeline(self.history),
-                                                     deque(maxlen=self.evidence), deque())
+                                                     deque(maxlen=self.evidence), deque(),
+                                                     ExpectedTrace(self.expected_windows))
         return ident, found
 
     def add_verdict(self, fleet: str, machine: str, verdict: Mapping[str, Any], *, received: float | None = None,
@@ -179,6 +187,17 @@ class FleetLive:
         first = rows[0]
         m.evidence.append({"window_start": float(first["window_start"]), "window_end": float(first["window_end"]),
                            "model_version": first.get("model_version"), "scores": scores})
+        if ident in self._table.latest():
+            self.seq += 1
+            self._changed[ident] = self.seq
+
+    def add_expected(self, fleet: str, machine: str, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Take one ``expected_window`` message (its rows, one per sensor the model predicts, as dicts): the machine
+        page charts its sensors against what the model expected (:class:`~hydrowatch.web.traces.ExpectedTrace`)."""
+        if not rows:
+            return
+        ident, m = self._machine(fleet, machine)
+        m.expected.add(rows)
         if ident in self._table.latest():
             self.seq += 1
             self._changed[ident] = self.seq
@@ -256,13 +275,15 @@ class FleetLive:
         """What the machine page shows: its row, its timeline (window bounds s, state, probability, every
         state's probability per window), the evidence of its last windows and, when :meth:`add_sensors` was given
         any, its last ``sensor_seconds`` of samples (``{"t": [...], "units": {name: unit}, "channels": {name:
-        [...]}}``, at most ``sensor_points`` per channel, NaN as None; else None); None for an unknown machine."""
+        [...]}}``, at most ``sensor_points`` per channel, NaN as None; else None), and when :meth:`add_expected` was
+        given any, its last windows' measured and expected sensors (:meth:`ExpectedTrace.to_dict
+        <hydrowatch.web.traces.ExpectedTrace.to_dict>`; else None); None for an unknown machine."""
         row = self.row(ident)
         if row is None:
             return None
         m = self._machines[ident]
         return {"row": row, "model_version": m.model_version, "timeline": m.timeline.to_dict(),
-                "evidence": list(m.evidence), "sensors": self._sensors(m)}
+                "evidence": list(m.evidence), "sensors": self._sensors(m), "expected": m.expected.to_dict()}
 
 
 def select(rows: Iterable[dict[str, Any]], state: str | None = None, fleet: str | None = None,

@@ -4,7 +4,8 @@ Subscribes to the verdicts and the evidence (relative entropies or parity relati
 machine of ``--fleet``, keeps them in a :class:`hydrowatch.web.live.FleetLive` and serves the fleet page
 and the machine pages on ``http://--host:--port/`` (:mod:`services.web.server`), which update in place by
 server-sent events. While a machine's page is open, the service also subscribes to that machine's
-``…/sensors`` and keeps its last seconds of samples for the page. Everything the pages need is served
+``…/sensors`` and ``…/expected`` and keeps its last seconds of samples and its last windows of measured and
+expected sensors for the page. Everything the pages need is served
 from ``services/web/static`` (no CDN). SIGINT/SIGTERM closes the page streams and the bus session.
 docs/web.md describes the pages.
 """
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _take(live: FleetLive, messages: Sequence[Message]) -> None:
     """Feed ``live`` with verdicts (``health``), evidence (``kl``), forecasts (``forecast``) and followed machines'
-    samples (``sensors``)."""
+    samples (``sensors``) and expected sensors (``expected``)."""
     for message in messages:
         k = message.key
         if k.topic == "sensors":
@@ -59,13 +60,15 @@ def _take(live: FleetLive, messages: Sequence[Message]) -> None:
                                  published_ms=message.publish_time_ns / 1e6 or None)
         elif k.topic == "forecast":
             live.add_forecast(k.fleet, k.machine, forecast_parts(message.batch)[1])
+        elif k.topic == "expected":
+            live.add_expected(k.fleet, k.machine, message.batch.to_pylist())
         else:
             live.add_evidence(k.fleet, k.machine, message.batch.to_pylist())
 
 
 class _SensorFeeds:
-    """A ``…/sensors`` subscriber for each machine whose page is open (declared and undeclared as pages come
-    and go); use as a context manager."""
+    """A ``…/sensors`` and ``…/expected`` subscriber for each machine whose page is open (declared and undeclared as
+    pages come and go); use as a context manager."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
@@ -78,13 +81,14 @@ class _SensorFeeds:
         for ident in watched - set(self._subscribers):
             fleet, machine = ident.split("/", 1)
             try:
-                self._subscribers[ident] = Subscriber(self.session, key(fleet, machine, "sensors"))
+                self._subscribers[ident] = Subscriber(self.session, [key(fleet, machine, topic)
+                                                                     for topic in ("sensors", "expected")])
             except ParameterError:
                 continue  # a page asked for an id that is no machine's: it shows no sensors
             event(log, "sensors followed while the machine's page is open", machine=ident)
 
     def take(self) -> list[Message]:
-        """What came on the followed machines' sensor topics since the last call (no waiting)."""
+        """What came on the followed machines' sensor and expected topics since the last call (no waiting)."""
         return [m for s in self._subscribers.values() for m in s.recv_many(timeout=0.0)]
 
     def __enter__(self) -> _SensorFeeds:

@@ -50,8 +50,9 @@ function stateBand(container, t, width = 960, height = 46) {
 }
 
 // Lines over time, one per series (null values break a line); y from y0 to y1.
-// `marks`: x positions drawn as dashed vertical lines (inside the range only).
-function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height = 160, log = false, marks = []} = {}) {
+// `marks`: x positions drawn as dashed vertical lines (inside the range only); `dashes`: series name → dash pattern.
+function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height = 160, log = false, marks = [],
+                                           dashes = {}} = {}) {
   const el = svg(width, height);
   if (!(y1 > y0)) { y0 = log ? y0 / 2 : y0 - 1; y1 = log ? y1 * 2 : y1 + 1; }  // one value: a band around it
   const tr = log ? (v) => Math.log10(Math.max(v, 1e-12)) : (v) => v;
@@ -73,7 +74,8 @@ function lineChart(container, xs, series, {y0 = 0, y1 = 1, width = 960, height =
       if (v == null || !isFinite(tr(v))) { d += " "; return; }
       d += `${d.endsWith(" ") || !d ? "M" : "L"}${x(xs[i]).toFixed(1)},${y(tr(v)).toFixed(1)}`;
     });
-    add(el, "path", {d: d.replace(/ +/g, " "), fill: "none", stroke: PALETTE[k % PALETTE.length], "stroke-width": 1.6});
+    add(el, "path", {d: d.replace(/ +/g, " "), fill: "none", stroke: PALETTE[k % PALETTE.length], "stroke-width": 1.6,
+      "stroke-dasharray": dashes[name] || "none"});
   });
   if (xs.length) timeAxis(el, lo, hi, width, height);
   container.replaceChildren(el);

@@ -1,4 +1,5 @@
-// A machine page: its verdict, timelines of verdicts and probabilities, the evidence of its last windows.
+// A machine page: its verdict, timelines of verdicts and probabilities, the evidence of its last windows, its
+// sensors against what the model expected (…/expected) and as measured (…/sensors).
 // Fed by /events/machine?id=<fleet>/<machine> (server-sent events: the machine each time it changes).
 "use strict";
 const ident = new URLSearchParams(location.search).get("id") || "";
@@ -59,6 +60,8 @@ function evidenceSection(m) {
 }
 
 const ORDER = ["voltage", "flow", "speed", "torque", "temperature", "supply_pressure", "load_pressure"];
+const rank = (n) => (ORDER.includes(n) ? ORDER.indexOf(n) : ORDER.length);
+const byChannel = (a, b) => rank(a) - rank(b) || a.localeCompare(b);
 
 function sensorsSection(m) {
   const box = document.getElementById("sensors");
@@ -68,8 +71,7 @@ function sensorsSection(m) {
       moment its page opens.</p>`;
     return;
   }
-  const rank = (n) => (ORDER.includes(n) ? ORDER.indexOf(n) : ORDER.length);
-  const names = Object.keys(s.channels).sort((a, b) => rank(a) - rank(b) || a.localeCompare(b));
+  const names = Object.keys(s.channels).sort(byChannel);
   box.innerHTML = names.map((n) => `<div class="sensor"><div class="note">${esc(n)} [${esc(s.units[n])}]</div>` +
     `<div id="sensor-${esc(n)}"></div></div>`).join("");
   for (const n of names) {
@@ -77,6 +79,31 @@ function sensorsSection(m) {
     lineChart(document.getElementById("sensor-" + n), s.t, {[n]: s.channels[n]},
       {y0: Math.min(...values), y1: Math.max(...values), height: 80, marks: m.timeline.end_s});
   }
+}
+
+// Each sensor the model predicts: measured and expected over the last windows (0.1 s means from the scorer).
+function expectedSection(m) {
+  const box = document.getElementById("expected");
+  const x = m.expected;
+  if (!x || !Object.keys(x).length) {
+    box.innerHTML = `<p class="note">Nothing yet: the scorer publishes what the model expected (…/expected) for each
+      window it judges; the service follows this machine's from the moment its page opens (one window, 5 s). Models
+      that predict no sensor (stats) publish none.</p>`;
+    legend(document.getElementById("x-legend"), []);
+    return;
+  }
+  const names = Object.keys(x).sort(byChannel);
+  box.innerHTML = names.map((n) => `<div class="sensor" data-sensor="${esc(n)}"><div class="note">${esc(n)}
+    [${esc(x[n].unit)}]: expected by the ${esc(x[n].source)}</div><div id="expected-${esc(n)}"></div></div>`).join("");
+  let entries = [];
+  for (const n of names) {
+    const s = x[n];
+    const values = [...s.measured, ...s.expected].filter((v) => v != null);
+    entries = lineChart(document.getElementById("expected-" + n), s.t, {measured: s.measured, expected: s.expected},
+      {y0: Math.min(...values), y1: Math.max(...values), height: 100, marks: m.timeline.end_s,
+        dashes: {expected: "6 3"}});
+  }
+  legend(document.getElementById("x-legend"), entries);
 }
 
 function draw(m) {
@@ -88,6 +115,7 @@ function draw(m) {
   const entries = lineChart(document.getElementById("probabilities"), t.end_s, t.probabilities);
   legend(document.getElementById("p-legend"), entries);
   evidenceSection(m);
+  expectedSection(m);
   sensorsSection(m);
   hw.updates += 1;
   if (hw.firstRowsMs === null) requestAnimationFrame(() => { hw.firstRowsMs = performance.now(); });
