@@ -45,6 +45,8 @@ TOPIC_KINDS: dict[str, str] = {
     "health": "health_verdict",
     "status": "status",
     "forecast": "forecast",
+    "cycles": "rig_cycles",
+    "cycle_health": "cycle_verdict",
 }
 """Last part of a key expression → schema name."""
 

@@ -1,7 +1,7 @@
 """``hydrowatch demo --rig NAME``: the pipeline on a rig's recorded cycles (docs/rigs.md, issue 17).
 
-1. import: the rig's data folder read with its description (:func:`hydrowatch.io.wide.read_cycles`), cycles counted
-   per component state;
+1. import: the rig's data folder read with its description (:func:`hydrowatch.io.rig_cycles.read_rig_data`), cycles
+   counted per component state;
 2. train: the ``cycles`` method, evaluated on the honest split per component, logged to MLflow and registered
    (:func:`~hydrowatch.training.rig_pipeline.train_rig_and_track`), as ``hydrowatch-<rig>@champion``;
 3. replay: the registered model loaded back from the registry and every cycle scored in recording order
@@ -20,7 +20,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from hydrowatch.io.wide import Cycles, read_cycles
+from hydrowatch.io.rig_cycles import read_rig_data
+from hydrowatch.io.wide import Cycles
 from hydrowatch.methods.cycles.train import state_name
 from hydrowatch.report.html import Section, write_html
 from hydrowatch.report.plots import confusion_png
@@ -54,7 +55,7 @@ def run_rig_demo(rig: str, out: str | Path, *, data: str | Path | None = None,
     out = Path(out)
     folder = rig_data_folder(rig, data)
     description, _ = rig_text(rig)
-    cycles = read_cycles(folder, description)
+    cycles = read_rig_data(folder, description)
     imported = import_counts(description, cycles)
     result, trained = train_rig_and_track(
         rig, folder, out / "model", TrainingSettings(method="cycles"), tracking=tracking,

@@ -21,6 +21,7 @@ from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.metrics import confusion_matrix, per_class_recall
 from hydrowatch.rig import Label, RigDescription
+from hydrowatch.rig.description import label_text
 
 FAST_HZ = 10.0
 """Channels recorded at least this fast (Hz) make the ``transients`` features (slow ones have no load-change
@@ -30,9 +31,8 @@ PHASES = 6
 divides a rig's samples per cycle."""
 
 
-def state_name(value: Any) -> str:
-    """A label value as a state name: ``100`` for 100.0, ``2.5``, or the text of a named value."""
-    return f"{value:g}" if isinstance(value, int | float | np.floating) else str(value)
+state_name = label_text
+"""A label value as a state name: ``100`` for 100.0, ``2.5``, or the text of a named value."""
 
 
 def component_states(label: Label) -> list[str]:
@@ -101,7 +101,9 @@ def fit_component(rig: RigDescription, data: CycleData) -> tuple[OpenSetComponen
 def component_data(rig: RigDescription, values: np.ndarray, labels: dict[str, np.ndarray], component: str) -> CycleData:
     """A component's :class:`CycleData` from a rig's cycles and labels."""
     others = [c for c in rig.components if c != component]
-    nuisance = np.column_stack([labels[c].astype(float) for c in others]) if others else np.zeros((len(values), 1))
+    # each other component's level as a category number (names or numbers: the projection only compares levels)
+    nuisance = (np.column_stack([np.unique(labels[c], return_inverse=True)[1].astype(float) for c in others])
+                if others else np.zeros((len(values), 1)))
     return CycleData(values, np.array([state_name(v) for v in labels[component]]), nuisance)
 
 
