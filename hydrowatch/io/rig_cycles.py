@@ -64,9 +64,9 @@ def _label_value(label: Label, text: str, where: str) -> LabelValue:
                     where)
 
 
-def cycles_from_batches(batches: Iterable[pa.RecordBatch], rig: RigDescription, source: str) -> tuple[Cycles,
-                                                                                                         np.ndarray]:
-    """The cycles of ``rig_cycles`` messages (in order) and their ``cycle`` indexes.
+def cycles_from_batches(batches: Iterable[pa.RecordBatch], rig: RigDescription,
+                        source: str) -> tuple[Windows, np.ndarray]:
+    """The cycles of ``rig_cycles`` messages (in order, with their ``start_s``) and their ``cycle`` indexes.
 
     Raises
     ------

@@ -21,7 +21,6 @@ from hydrowatch.errors import DataError
 from hydrowatch.io.rig_cycles import read_rig_data, start_times
 from hydrowatch.io.wide import Cycles
 from hydrowatch.methods.cycles import CyclesMethod
-from hydrowatch.methods.cycles.train import state_name
 from hydrowatch.results import TrainingResult
 from hydrowatch.rig.description import rig_text
 from hydrowatch.training.bundle import ModelBundle
@@ -101,9 +100,7 @@ def score_cycles(bundle: ModelBundle, cycles: Cycles) -> dict[str, Any]:
         raise DataError(f"a rig folder is scored with a cycles bundle (train --rig). Got a {bundle.method} bundle.",
                         cycles.source)
     verdicts = method.judge_cycles(cycles.values)
-    trained = {c: {str(k) for k in m.classifier_.classes_} for c, m in method.models.items()}
-    truth = {c: [name if name in trained[c] else UNKNOWN for name in map(state_name, cycles.labels[c])]
-             for c in verdicts if c in cycles.labels}
+    truth = method.truth(cycles.labels)
     starts = start_times(cycles, method.rig)
     rows = []
     for i in range(len(cycles)):

@@ -13,6 +13,8 @@ that stay, NaN, late or out-of-order chunks make the window in progress ``invali
 The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
 ``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
 when it moves; an alias that does not exist yet is waited for. SIGINT/SIGTERM drains and exits.
+A cycles bundle (``train --rig``) judges a rig's whole cycles instead: ``hydro/<fleet>/*/cycles`` in,
+``…/cycle_health`` out (:mod:`services.scorer.cycles`).
 """
 
 from __future__ import annotations
@@ -264,6 +266,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     if model is None:
         return 0
     model.follow(stop)
+    if model.bundle.health_method.streams == "cycles":  # a rig's whole cycles, not sensor samples (docs/rigs.md)
+        from services.scorer.cycles import run_cycles
+
+        return run_cycles(model, args, stop, NAME)
     units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)
     forecasts = _forecasts(model, args)

@@ -1,15 +1,16 @@
 """Per-cycle verdicts per component of any rig (docs/rigs.md, issue 17): the ``cycles`` method.
 
-Trained from a rig description's imported cycles (``hydrowatch train --rig NAME|FILE --data FOLDER``, the wide
-layout, :func:`hydrowatch.io.wide.read_cycles`), not from labelled recordings: every component the description
+Trained from a rig description's imported cycles (``hydrowatch train --rig NAME|FILE --data PATH``,
+:func:`hydrowatch.io.rig_cycles.read_rig_data`), not from labelled recordings: every component the description
 labels (``[labels.<component>]``, flags excluded) gets its own open-set classifier
 (:mod:`hydrowatch.methods.cycles.train`), so each cycle has one verdict per component with that component's states,
 probabilities and ``unknown`` (:mod:`hydrowatch.cycles.openset`). Bundle folder: ``cycles/rig.toml`` (the
 description it was trained with, which reads the data it scores) and ``cycles/model.pkl`` (the fitted
 classifiers, scikit-learn objects: a pickle, so load only bundles you trust, as any MLflow model).
 
-The method does not stream yet: :meth:`CyclesMethod.online` refuses, and so does :meth:`CyclesMethod.score` of a
-plant recording; :meth:`CyclesMethod.judge_cycles` judges cycles (``hydrowatch score`` of a wide folder).
+:meth:`CyclesMethod.judge_cycles` judges cycles: ``hydrowatch score`` of a rig's data, and the scorer service of
+``rig_cycles`` messages (:attr:`CyclesMethod.streams` is ``cycles``, :mod:`hydrowatch.training.cycle_stream`).
+:meth:`CyclesMethod.online` (sensor samples) refuses, and so does :meth:`CyclesMethod.score` of a plant recording.
 """
 
 from __future__ import annotations
@@ -24,7 +25,13 @@ import numpy as np
 from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores, WindowJudge
-from hydrowatch.methods.cycles.train import component_data, component_states, evaluate_component, fit_component
+from hydrowatch.methods.cycles.train import (
+    component_data,
+    component_states,
+    evaluate_component,
+    fit_component,
+    state_name,
+)
 from hydrowatch.recording import Recording
 from hydrowatch.rig import RigDescription
 from hydrowatch.rig.description import rig_from_text
@@ -52,6 +59,7 @@ class CyclesMethod(HealthMethod):
 
     name: ClassVar[str] = "cycles"
     row_label: ClassVar[str] = "component"
+    streams: ClassVar[str] = "cycles"
 
     def __init__(self, rig_text: str, models: dict[str, OpenSetComponent], features: dict[str, str],
                  source: str = RIG_FILE) -> None:
@@ -151,6 +159,13 @@ class CyclesMethod(HealthMethod):
                       for s, q, n in zip(states, p, novelty)]
         return out
 
+    def truth(self, labels: Mapping[str, np.ndarray]) -> dict[str, list[str]]:
+        """Per component the models judge and ``labels`` has, each cycle's label as a state name, or ``unknown`` for
+        a state the component was not trained on (what a verdict is compared with)."""
+        trained = {c: {str(k) for k in m.classifier_.classes_} for c, m in self.models.items()}
+        return {c: [name if name in trained[c] else UNKNOWN for name in map(state_name, labels[c])]
+                for c in self.models if c in labels}
+
     def score(self, recording: Recording, smoothing: int = 1) -> OfflineScores:
         """Refused: the method judges a rig's cycles (:meth:`judge_cycles`), not a plant recording."""
         raise DataError(f"a cycles bundle scores the cycles of rig {self.rig.name!r}: give `hydrowatch score` the "
@@ -158,7 +173,8 @@ class CyclesMethod(HealthMethod):
 
     def online(self, *, smoothing: int = 1,
                unit_method: Callable[[str], HealthMethod | None] | None = None) -> WindowJudge:
-        """Refused: the scorer service streams recordings of the plant's channels; cycles bundles are scored
-        offline (``hydrowatch score``)."""
-        raise ParameterError("a cycles bundle is scored offline with `hydrowatch score --model M --data FOLDER`; "
-                             "the scorer service does not stream rig cycles yet.")
+        """Refused: a cycles bundle judges whole cycles (the scorer service takes them off
+        ``hydro/<fleet>/<machine>/cycles``, :attr:`streams`), not sensor samples."""
+        raise ParameterError("a cycles bundle judges a rig's whole cycles (rig_cycles messages on "
+                             "hydro/<fleet>/<machine>/cycles, e.g. `hydrowatch replay` of an `import --rig` file), "
+                             "not sensor samples.")
