@@ -20,6 +20,7 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
 from hydrowatch.cycles.features import cycle_statistics
+from hydrowatch.cycles.linear import LinearDiscriminant
 from hydrowatch.cycles.splits import ordered_split
 from hydrowatch.cycles.transients import LoadChangeTransients, NuisanceProjection
 from hydrowatch.errors import NotFittedError, ParameterError
@@ -73,16 +74,18 @@ class ComponentClassifier:
 
     def _fit_once(
         self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, directions: int
-    ) -> tuple[LoadChangeTransients | None, NuisanceProjection | None, Any]:
+    ) -> tuple[LoadChangeTransients | None, NuisanceProjection | None, LinearDiscriminant]:
         if self.features == "statistics":
             x = self._statistics(values)
-            return None, None, make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(x, labels)
+            lda = make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(x, labels)
+            return None, None, LinearDiscriminant.from_fitted(lda)
         transients = LoadChangeTransients(
             reference=self.reference, threshold=self.threshold, channels=self.channels
         ).fit(values)
         x = transients.transform(values)
         projection = NuisanceProjection(directions=directions).fit(x, labels, nuisance)
-        return transients, projection, LinearDiscriminantAnalysis().fit(projection.transform(x), labels)
+        lda = LinearDiscriminantAnalysis().fit(projection.transform(x), labels)
+        return transients, projection, LinearDiscriminant.from_fitted(lda)
 
     def fit(self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray | None = None) -> ComponentClassifier:
         """Fit on training cycles.
@@ -167,3 +170,29 @@ class ComponentClassifier:
         """
         projected = self.model_.transform(self._features(values))
         return np.asarray(np.linalg.norm(projected[:, None, :] - self.centroids_[None, :, :], axis=2))
+
+    PARAMETERS: tuple[str, ...] = ("features", "grid_hz", "phases", "reference", "threshold", "directions",
+                                   "channels")
+
+    def to_state(self) -> dict[str, Any]:
+        """Parameters and fitted arrays, no scikit-learn object (:mod:`hydrowatch.cycles.state` stores them)."""
+        if not hasattr(self, "model_"):
+            raise NotFittedError("ComponentClassifier must be fitted before to_state. Call fit first.")
+        parameters = {k: getattr(self, k) for k in self.PARAMETERS}
+        parameters["channels"] = None if self.channels is None else [int(c) for c in self.channels]
+        return {"parameters": parameters, "directions_": int(self.directions_), "classes_": self.classes_,
+                "centroids_": self.centroids_, "model_": self.model_.to_state(),
+                "transients_": None if self.transients_ is None else self.transients_.to_state(),
+                "projection_": None if self.projection_ is None else self.projection_.to_state()}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> ComponentClassifier:
+        """The inverse of :meth:`to_state`."""
+        out = cls(**state["parameters"])
+        out.directions_, out.classes_, out.centroids_ = state["directions_"], state["classes_"], state["centroids_"]
+        out.model_ = LinearDiscriminant.from_state(state["model_"])
+        out.transients_ = None if state["transients_"] is None else LoadChangeTransients.from_state(
+            state["transients_"])
+        out.projection_ = None if state["projection_"] is None else NuisanceProjection.from_state(
+            state["projection_"])
+        return out
