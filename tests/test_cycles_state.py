@@ -54,13 +54,13 @@ def test_the_arrays_of_an_lda_predict_as_scikit_learn_does(classes: int, scaled:
     assert ours.transform(test).shape == (50, classes - 1)
 
 
-@pytest.mark.parametrize("features", ["statistics", "transients"])
+@pytest.mark.parametrize("features", ["statistics", "transients", "entropy"])
 def test_a_fitted_open_set_classifier_goes_through_json_unchanged(rig_cycles: tuple[Path, object],
                                                                   features: str) -> None:
     _, cycles = rig_cycles
     values, valve = cycles.values, np.array([f"{v:g}" for v in cycles.labels["valve"]])  # type: ignore[attr-defined]
     nuisance = cycles.labels["pump"][:, None]  # type: ignore[attr-defined]
-    chosen = {"phases": 5} if features == "statistics" else {"channels": [0]}  # 20 samples a cycle
+    chosen = {"statistics": {"phases": 5}, "transients": {"channels": [0]}, "entropy": {"healthy": "100"}}[features]
     fitted = OpenSetComponent(ComponentClassifier(features=features, **chosen)).fit(values, valve, nuisance)
     text = json.dumps(to_json_tree(fitted.to_state()))
     back = OpenSetComponent.from_state(from_json_tree(json.loads(text), "test"))
@@ -70,6 +70,8 @@ def test_a_fitted_open_set_classifier_goes_through_json_unchanged(rig_cycles: tu
     assert back.classifier_.classes_.tolist() == ["100", "60", "80"]
     if features == "transients":
         assert back.classifier_.transients_ is not None and back.classifier_.transients_.changes_.tolist() == [5, 12]
+    if features == "entropy":
+        assert back.classifier_.entropy_ is not None and back.classifier.healthy == "100"
     assert back.classifier.features == features and back.classifier_.directions_ == fitted.classifier_.directions_
 
 

@@ -60,7 +60,7 @@ class CyclesMethod(HealthMethod):
     models : dict of str to OpenSetComponent
         Per component, its fitted classifier.
     features : dict of str to str
-        Per component, the feature set chosen (``statistics`` or ``transients``).
+        Per component, the feature set chosen (``statistics``, ``transients`` or ``entropy``).
     """
 
     name: ClassVar[str] = "cycles"
