@@ -159,3 +159,6 @@ def test_import_rig_refuses_a_label_option_and_an_mcap_input(rigs: Path, capsys:
     assert main(["import", str(_imported(rigs)), "--rig", str(rigs / "tiny.toml"), "--out",
                  str(rigs / "y.mcap")]) != 0
     assert "it is imported already" in capsys.readouterr().err
+    # a sample reader (export, train without --rig) names what the file holds instead
+    assert main(["export", str(rigs / "wide2.mcap"), "--out", str(rigs / "x.parquet")]) == 2
+    assert "it holds whole cycles of rig 'tiny-cycles', written by `import --rig`" in capsys.readouterr().err
