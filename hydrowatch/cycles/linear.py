@@ -69,7 +69,8 @@ class LinearDiscriminant:
             scale = np.asarray(scaler.scale_ if scaler.with_std else np.ones(n), dtype=np.float64)
         return cls(classes=np.asarray(lda.classes_), coef=np.asarray(lda.coef_, dtype=np.float64),
                    intercept=np.asarray(lda.intercept_, dtype=np.float64), xbar=np.asarray(lda.xbar_, np.float64),
-                   scalings=np.asarray(lda.scalings_, dtype=np.float64), components=int(lda._max_components),
+                   scalings=np.asarray(lda.scalings_, dtype=np.float64),
+                   components=int(lda.transform(lda.xbar_[None, :]).shape[1]),  # its public output width
                    mean=mean, scale=scale)
 
     def _standardised(self, x: np.ndarray) -> np.ndarray:
