@@ -8,6 +8,9 @@ description ``uci-hydraulic`` and prints, per component, accuracy and macro-F1 o
 - ``transients``: the pressures', motor power's and flows' values around each load change relative
   to their settled level, the other components' directions projected out (dimension chosen on the
   training cycles only) → LDA,
+- ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a healthy
+  reference model from the second of the cycle and the other channels, the relative entropy of each cycle's errors
+  to each condition's base error distribution → LDA,
 
 on (a) 5 random folds of cycles and (b) the honest split (within each class of the component,
 its first 70 % of cycles in recording order train, the last 30 % test). ``--forest`` adds the
@@ -49,9 +52,11 @@ class _Classifier:
     def __init__(self, features: str, reference: int, channels: list[int] | None = None) -> None:
         self.features, self.reference, self.channels = features, reference, channels
         self.directions: list[int] = []
+        self.healthy: float | None = None  # the judged component's (entropy)
 
     def __call__(self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, test: np.ndarray) -> np.ndarray:
-        model = ComponentClassifier(features=self.features, reference=self.reference, channels=self.channels)
+        model = ComponentClassifier(features=self.features, reference=self.reference, channels=self.channels,
+                                    healthy=self.healthy)
         model.fit(values, labels, nuisance)
         self.directions.append(model.directions_)
         return model.predict(test)
@@ -94,9 +99,11 @@ def main(argv: list[str] | None = None) -> int:
     rig, cycles = loaded
     reference = cycles.channels.index("PS1")
     fast = [cycles.channels.index(c) for c in rig.recorded_at_least(FAST_HZ)]
+    sensors = [cycles.channels.index(c.name) for c in rig.channels if c.role == "sensor"]
     methods: dict[str, Fit] = {
         "statistics+LDA": _Classifier("statistics", reference),
         "transients+LDA": _Classifier("transients", reference, fast),
+        "entropy+LDA": _Classifier("entropy", reference, sensors),
     }
     if args.forest:
         methods["statistics+forest"] = _forest
@@ -111,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     for component in rig.components:
         others = [c for c in rig.components if c != component]
         for name, fit in methods.items():
+            if isinstance(fit, _Classifier):
+                fit.healthy = float(rig.label(component).healthy)
             start = time.perf_counter()
             s = evaluate(cycles, component, others, fit, args.folds, args.seed)
             dims = fit.directions if isinstance(fit, _Classifier) and fit.features == "transients" else "-"

@@ -330,12 +330,18 @@ FORECAST = schema_by_name("forecast")
 """When each part of one machine will reach the alert, one row per part (the scorer, every few windows)."""
 EXPECTED_WINDOW = schema_by_name("expected_window")
 """What the model expected one window's sensors to read, beside what they read, one row per sensor (chart points)."""
+RIG_CYCLES = schema_by_name("rig_cycles")
+"""Whole cycles of one machine of any rig, one row per cycle, every channel on the rig's grid (docs/rigs.md)."""
+CYCLE_VERDICT = schema_by_name("cycle_verdict")
+"""A cycles bundle's verdicts, one row per cycle and component (the scorer)."""
 
 __all__ = [
+    "CYCLE_VERDICT",
     "EXPECTED_WINDOW",
     "FORECAST",
     "HEALTH_VERDICT",
     "KL_WINDOW",
+    "RIG_CYCLES",
     "SCHEMA_VERSION",
     "SENSOR_CHUNK",
     "STATUS",

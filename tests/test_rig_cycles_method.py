@@ -180,9 +180,13 @@ def test_demo_on_a_rig_imports_trains_replays_from_the_registry_and_reports(
     assert summary["imported"] == {"valve": {"100": 60, "80": 60}, "pump": {"0": 60, "1": 60}}
     assert summary["model_uri"] == "models:/hydrowatch-tiny-cycles@champion"
     # the replay reads the training cycles back through the registered model: nearly all right, never a wrong state
+    # (the scorer and replay services, a bus of their own): every cycle's verdicts come back, equal to `score`'s
     for component, replayed in summary["replay"].items():
         assert replayed["accuracy"] >= 0.95, component
         assert sum(n for s, n in replayed["counts"].items() if s != "unknown") == round(replayed["accuracy"] * 120)
+        assert replayed["cycles"] == 120 and replayed["offline_agreement"] == 1.0
+    assert Path(summary["recording"]).name == "tiny-cycles.mcap" and summary["bus_seconds"] > 0
     html = (root / "demo" / "report.html").read_text()
     assert "Training: the honest split per component" in html and html.count("<img") == 2
+    assert "Replay on the bus" in html
     assert len(json.loads((root / "demo" / "scores.json").read_text())["cycles"]) == 120

@@ -11,8 +11,9 @@ from typing import NamedTuple
 from hydrowatch.errors import DataError, ParameterError
 
 PREFIX = "hydro"
-TOPICS: tuple[str, ...] = ("sensors", "kl", "health", "status", "forecast", "expected")
-"""Topics of the contract, the last chunk of every key."""
+TOPICS: tuple[str, ...] = ("sensors", "kl", "health", "status", "forecast", "expected", "cycles", "cycle_health")
+"""Topics of the contract, the last chunk of every key (``cycles`` and ``cycle_health``: a rig's whole cycles and
+their per-component verdicts, docs/rigs.md)."""
 
 _FORBIDDEN = set("/*$?#@ ")
 

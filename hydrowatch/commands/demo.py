@@ -77,7 +77,7 @@ def _rig_demo(args: argparse.Namespace, as_json: bool) -> int:
     print(f"rig {summary['rig']}: {summary['cycles']} cycles from {summary['data']}")
     for c, f in summary["honest"].items():
         replayed = summary["replay"][c]["accuracy"]
-        print(f"  {c}: honest split {f['accuracy']:.1%} ({f['features']}), replay of all cycles "
+        print(f"  {c}: honest split {f['accuracy']:.1%} ({f['features']}), replay of all cycles on the bus "
               f"{'unlabelled' if replayed is None else f'{replayed:.1%}'}")
     print(f"registered {summary['model_uri']} (run {summary['run_id']}); next: open {summary['report']}")
     return 0

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.errors import DataError
-from hydrowatch.io.long_table import read_windows
-from hydrowatch.io.wide import Cycles, read_cycles
+from hydrowatch.io.rig_cycles import read_rig_data
+from hydrowatch.io.wide import Cycles
 from hydrowatch.rig import BUILTIN, RigDescription, builtin_rig, load_rig
 from hydrowatch.rig.plant import plant_rig
 
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     rig = resolve(args.rig)
     data = None
     if args.data is not None:
-        data = read_cycles(args.data, rig) if rig.layout == "wide" else read_windows(args.data, rig)
+        data = read_rig_data(args.data, rig)
     s = summary(rig, data)
     print(json.dumps(s, ensure_ascii=False) if args.json else _lines(s))
     return 0

@@ -28,7 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="labelled recordings (folder or file); with --rig the rig's data folder")
     parser.add_argument("--rig", default=None, metavar="NAME|FILE",
                         help="train the cycles method (one verdict per component per cycle) on the cycles of this rig "
-                             "description (a shipped name such as uci-hydraulic, or a .toml file; wide layout)")
+                             "description (a shipped name such as uci-hydraulic, or a .toml file); --data: a folder of "
+                             "per-cycle files (wide layout), a CSV/Parquet table (long) or an MCAP file of "
+                             "`import --rig`")
     parser.add_argument("--out", required=True, type=Path,
                         help="model bundle folder to write (--method both: OUT/entropy and OUT/parity)")
     parser.add_argument("--report", type=Path, default=None, help="also keep the plots and tables in this folder")

@@ -6,7 +6,9 @@ Two feature sets (module :mod:`hydrowatch.cycles.features` and :mod:`hydrowatch.
 - ``transients``: values around each load change relative to their settled level, with the
   directions the other components' conditions move them projected out. The dimension of that
   projection is chosen on the training cycles only, by the honest split applied inside them
-  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given.
+  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given;
+- ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a
+  healthy reference model, the relative entropy of each cycle's errors to each condition's.
 """
 
 from __future__ import annotations
@@ -20,11 +22,13 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
 from hydrowatch.cycles.features import cycle_statistics
+from hydrowatch.cycles.linear import LinearDiscriminant
+from hydrowatch.cycles.reference import CycleReferenceEntropy
 from hydrowatch.cycles.splits import ordered_split
 from hydrowatch.cycles.transients import LoadChangeTransients, NuisanceProjection
 from hydrowatch.errors import NotFittedError, ParameterError
 
-FEATURES = ("statistics", "transients")
+FEATURES = ("statistics", "transients", "entropy")
 DIRECTIONS_GRID: tuple[int, ...] = (0, 1, 2, 3, 4, 6, 8, 10)
 """Nuisance dimensions tried when ``directions`` is None (the fewest among the best on validation wins)."""
 
@@ -49,7 +53,10 @@ class ComponentClassifier:
     channels : sequence of int or None, default None
         Channels (axis 1) the features are made of; None: every channel. For ``transients`` the
         slow channels (temperatures) have no load-change dynamics and only add noise; the
-        ``reference`` channel need not be among them.
+        ``reference`` channel need not be among them. For ``entropy``: the sensors that get a reference model
+        (every channel is an input).
+    healthy : str or float or None, default None
+        The component's healthy label (``entropy`` fits its reference models on those cycles; required there).
     """
 
     def __init__(
@@ -62,6 +69,7 @@ class ComponentClassifier:
         threshold: float = 3.0,
         directions: int | None = None,
         channels: Sequence[int] | None = None,
+        healthy: str | float | None = None,
     ) -> None:
         self.features = features
         self.grid_hz = grid_hz
@@ -70,19 +78,29 @@ class ComponentClassifier:
         self.threshold = threshold
         self.directions = directions
         self.channels = channels
+        self.healthy = healthy
 
     def _fit_once(
         self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, directions: int
-    ) -> tuple[LoadChangeTransients | None, NuisanceProjection | None, Any]:
+    ) -> tuple[LoadChangeTransients | None, NuisanceProjection | None, CycleReferenceEntropy | None,
+               LinearDiscriminant]:
         if self.features == "statistics":
             x = self._statistics(values)
-            return None, None, make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(x, labels)
+            lda = make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(x, labels)
+            return None, None, None, LinearDiscriminant.from_fitted(lda)
+        if self.features == "entropy":
+            if self.healthy is None:
+                raise ParameterError("healthy must be the component's healthy label for features='entropy'. Got None.")
+            entropy = CycleReferenceEntropy(healthy=self.healthy, sensors=self.channels).fit(values, labels)
+            lda = make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(entropy.transform(values), labels)
+            return None, None, entropy, LinearDiscriminant.from_fitted(lda)
         transients = LoadChangeTransients(
             reference=self.reference, threshold=self.threshold, channels=self.channels
         ).fit(values)
         x = transients.transform(values)
         projection = NuisanceProjection(directions=directions).fit(x, labels, nuisance)
-        return transients, projection, LinearDiscriminantAnalysis().fit(projection.transform(x), labels)
+        lda = LinearDiscriminantAnalysis().fit(projection.transform(x), labels)
+        return transients, projection, None, LinearDiscriminant.from_fitted(lda)
 
     def fit(self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray | None = None) -> ComponentClassifier:
         """Fit on training cycles.
@@ -105,8 +123,9 @@ class ComponentClassifier:
             directions = self.choose_directions(values, labels, nuisance) if self.features == "transients" else 0
         self.directions_ = directions
         self.classes_ = np.unique(labels)
-        self.transients_, self.projection_, self.model_ = self._fit_once(values, labels, nuisance, directions)
-        projected = self.model_.transform(self._transform(values, self.transients_, self.projection_))
+        self.transients_, self.projection_, self.entropy_, self.model_ = self._fit_once(
+            values, labels, nuisance, directions)
+        projected = self.model_.transform(self._features(values))
         self.centroids_ = np.stack([projected[labels == c].mean(axis=0) for c in self.classes_])
         return self
 
@@ -121,7 +140,7 @@ class ComponentClassifier:
         fit_part, check = ordered_split(labels)
         scores = []
         for k in grid:
-            transients, projection, model = self._fit_once(values[fit_part], labels[fit_part], nuisance[fit_part], k)
+            transients, projection, _, model = self._fit_once(values[fit_part], labels[fit_part], nuisance[fit_part], k)
             x = self._transform(values[check], transients, projection)
             scores.append(float(np.mean(model.predict(x) == labels[check])))
         self.validation_ = dict(zip(grid, scores, strict=True))
@@ -142,6 +161,8 @@ class ComponentClassifier:
     def _features(self, values: np.ndarray) -> np.ndarray:
         if not hasattr(self, "model_"):
             raise NotFittedError("ComponentClassifier must be fitted before predict. Call fit first.")
+        if self.entropy_ is not None:
+            return self.entropy_.transform(values)
         return self._transform(values, self.transients_, self.projection_)
 
     def predict(self, values: np.ndarray) -> np.ndarray:
@@ -167,3 +188,31 @@ class ComponentClassifier:
         """
         projected = self.model_.transform(self._features(values))
         return np.asarray(np.linalg.norm(projected[:, None, :] - self.centroids_[None, :, :], axis=2))
+
+    PARAMETERS: tuple[str, ...] = ("features", "grid_hz", "phases", "reference", "threshold", "directions",
+                                   "channels", "healthy")
+
+    def to_state(self) -> dict[str, Any]:
+        """Parameters and fitted arrays, no scikit-learn object (:mod:`hydrowatch.cycles.state` stores them)."""
+        if not hasattr(self, "model_"):
+            raise NotFittedError("ComponentClassifier must be fitted before to_state. Call fit first.")
+        parameters = {k: getattr(self, k) for k in self.PARAMETERS}
+        parameters["channels"] = None if self.channels is None else [int(c) for c in self.channels]
+        return {"parameters": parameters, "directions_": int(self.directions_), "classes_": self.classes_,
+                "centroids_": self.centroids_, "model_": self.model_.to_state(),
+                "transients_": None if self.transients_ is None else self.transients_.to_state(),
+                "projection_": None if self.projection_ is None else self.projection_.to_state(),
+                "entropy_": None if self.entropy_ is None else self.entropy_.to_state()}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> ComponentClassifier:
+        """The inverse of :meth:`to_state`."""
+        out = cls(**state["parameters"])
+        out.directions_, out.classes_, out.centroids_ = state["directions_"], state["classes_"], state["centroids_"]
+        out.model_ = LinearDiscriminant.from_state(state["model_"])
+        out.transients_ = None if state["transients_"] is None else LoadChangeTransients.from_state(
+            state["transients_"])
+        out.projection_ = None if state["projection_"] is None else NuisanceProjection.from_state(
+            state["projection_"])
+        out.entropy_ = None if state["entropy_"] is None else CycleReferenceEntropy.from_state(state["entropy_"])
+        return out

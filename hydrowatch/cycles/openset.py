@@ -12,6 +12,7 @@ split inside the training cycles: unseen cycles, not the fitted ones, set the sc
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 
@@ -69,3 +70,22 @@ class OpenSetComponent:
         if not hasattr(self, "classifier_"):
             raise NotFittedError("OpenSetComponent must be fitted before novelty. Call fit first.")
         return np.asarray((self.classifier_.distances(values) / self.thresholds_).min(axis=1))
+
+    def to_state(self) -> dict[str, Any]:
+        """Parameters and fitted arrays (:mod:`hydrowatch.cycles.state`); the unfitted ``classifier`` as its
+        parameters."""
+        if not hasattr(self, "classifier_"):
+            raise NotFittedError("OpenSetComponent must be fitted before to_state. Call fit first.")
+        parameters = {k: getattr(self.classifier, k) for k in ComponentClassifier.PARAMETERS}
+        if parameters["channels"] is not None:
+            parameters["channels"] = [int(c) for c in parameters["channels"]]
+        return {"quantile": self.quantile, "margin": self.margin, "classifier": parameters,
+                "thresholds_": self.thresholds_, "classifier_": self.classifier_.to_state()}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> OpenSetComponent:
+        """The inverse of :meth:`to_state`."""
+        out = cls(ComponentClassifier(**state["classifier"]), quantile=state["quantile"], margin=state["margin"])
+        out.thresholds_ = state["thresholds_"]
+        out.classifier_ = ComponentClassifier.from_state(state["classifier_"])
+        return out

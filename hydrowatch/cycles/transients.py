@@ -15,6 +15,7 @@ an accumulator state in training.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -121,6 +122,23 @@ class LoadChangeTransients:
             parts.append(values[:, :, s - self.before : s + self.after] - settled)
         return np.concatenate(parts, axis=2).reshape(values.shape[0], -1)
 
+    def to_state(self) -> dict[str, Any]:
+        """Parameters and fitted arrays (:mod:`hydrowatch.cycles.state`)."""
+        if not hasattr(self, "changes_"):
+            raise NotFittedError("LoadChangeTransients must be fitted before to_state. Call fit(values) first.")
+        return {"reference": self.reference, "threshold": self.threshold, "before": self.before, "after": self.after,
+                "settle": list(self.settle), "channels": None if self.channels is None else list(self.channels),
+                "channels_": self.channels_, "changes_": self.changes_}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> LoadChangeTransients:
+        """The inverse of :meth:`to_state`."""
+        a, b = state["settle"]
+        out = cls(reference=state["reference"], threshold=state["threshold"], before=state["before"],
+                  after=state["after"], settle=(a, b), channels=state["channels"])
+        out.channels_, out.changes_ = state["channels_"], state["changes_"]
+        return out
+
 
 class NuisanceProjection:
     """Standardise features and project out the directions other components' conditions move them.
@@ -185,3 +203,17 @@ class NuisanceProjection:
             raise NotFittedError("NuisanceProjection must be fitted before transform. Call fit first.")
         z = (features - self.mean_) / self.scale_
         return z - (z @ self.basis_.T) @ self.basis_
+
+    def to_state(self) -> dict[str, Any]:
+        """Parameters and fitted arrays (:mod:`hydrowatch.cycles.state`)."""
+        if not hasattr(self, "basis_"):
+            raise NotFittedError("NuisanceProjection must be fitted before to_state. Call fit first.")
+        return {"directions": self.directions, "min_group": self.min_group, "mean_": self.mean_,
+                "scale_": self.scale_, "basis_": self.basis_}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> NuisanceProjection:
+        """The inverse of :meth:`to_state`."""
+        out = cls(directions=state["directions"], min_group=state["min_group"])
+        out.mean_, out.scale_, out.basis_ = state["mean_"], state["scale_"], state["basis_"]
+        return out

@@ -46,6 +46,8 @@ TOPIC_KINDS: dict[str, str] = {
     "status": "status",
     "forecast": "forecast",
     "expected": "expected_window",
+    "cycles": "rig_cycles",
+    "cycle_health": "cycle_verdict",
 }
 """Last part of a key expression → schema name."""
 

@@ -147,8 +147,11 @@ def _read_mcap(path: Path, machine: str | None, recover: bool) -> tuple[np.ndarr
             source,
         )
     if not times:
+        rig = recovery.metadata.get(METADATA_NAME, {}).get("rig")
+        found = (f" (it holds whole cycles of rig {rig!r}, written by `import --rig`: give it to `train --rig`, "
+                 "`score` or `rig --data`)") if rig else ""
         raise DataError(
-            f"file must hold sensor chunks on hydro/<fleet>/{machine or '<machine>'}/sensors. Got none.", source
+            f"file must hold sensor chunks on hydro/<fleet>/{machine or '<machine>'}/sensors. Got none{found}.", source
         )
     meta_record = recovery.metadata.get(METADATA_NAME, {})
     meta: dict[str, Any] = json.loads(meta_record.get("extra", "{}"))

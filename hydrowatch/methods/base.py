@@ -222,6 +222,9 @@ class HealthMethod:
         Whether :meth:`commission` adapts the method to one machine.
     row_label : str
         What the ``kl`` rows are (``sensor``, ``relation``).
+    streams : str
+        The bus topic the scorer service judges with this method: ``sensors`` (samples, :meth:`online`) or
+        ``cycles`` (a rig's whole cycles, the ``cycles`` method; docs/rigs.md).
     """
 
     name: ClassVar[str]
@@ -229,6 +232,7 @@ class HealthMethod:
     default_smoothing: ClassVar[int] = 1
     commissionable: ClassVar[bool] = False
     row_label: ClassVar[str] = "sensor"
+    streams: ClassVar[str] = "sensors"
 
     @classmethod
     def fit(cls, grouped: Mapping[str, list[Recording]], settings: TrainingSettings) -> MethodFit:

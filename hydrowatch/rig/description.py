@@ -21,6 +21,7 @@ scaling).
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import tomllib
 from collections.abc import Mapping
@@ -39,6 +40,11 @@ LAYOUTS = ("wide", "long")
 ``long``: one table, rows = samples, a time column and one column per channel (CSV/Parquet)."""
 LabelValue = str | float
 """A label value: a name (``"healthy"``) or a number (a cooler efficiency of 20 %)."""
+
+
+def label_text(value: object) -> str:
+    """A label value as text, as a description writes it: ``100`` for 100.0, ``2.5``, or the name itself."""
+    return f"{value:g}" if isinstance(value, numbers.Real) else str(value)
 
 
 @dataclass(frozen=True)

@@ -1,15 +1,15 @@
 """Train and score a rig's cycles with the ``cycles`` method (docs/rigs.md): ``hydrowatch train --rig`` and
 ``hydrowatch score`` of a cycles bundle.
 
-Training reads the cycles of a wide-layout rig (:func:`hydrowatch.io.wide.read_cycles`), fits
+Training reads a rig's cycles (:func:`hydrowatch.io.rig_cycles.read_rig_data`: a wide folder, a long CSV/Parquet
+table or an MCAP file of ``import --rig``), fits
 :class:`~hydrowatch.methods.cycles.CyclesMethod`, saves the bundle and logs the run to MLflow like every method
 (:func:`~hydrowatch.training.tracking.log_training`), the honest split's figures per component as metrics.
-Scoring reads a folder of the same layout with the description kept in the bundle; its label file is optional.
+Scoring reads data of the same kinds with the description kept in the bundle; a wide folder's label file is optional.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import tempfile
 import time
@@ -18,9 +18,9 @@ from typing import Any
 
 from hydrowatch.cycles.openset import UNKNOWN
 from hydrowatch.errors import DataError
-from hydrowatch.io.wide import Cycles, read_cycles
+from hydrowatch.io.rig_cycles import read_rig_data, start_times
+from hydrowatch.io.wide import Cycles
 from hydrowatch.methods.cycles import CyclesMethod
-from hydrowatch.methods.cycles.train import state_name
 from hydrowatch.results import TrainingResult
 from hydrowatch.rig.description import rig_text
 from hydrowatch.training.bundle import ModelBundle
@@ -58,7 +58,7 @@ def train_rig_and_track(
     ``features``), ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``, ``runs_url``)."""
     started, clock = time.time(), time.perf_counter()
     description, text = rig_text(rig)
-    cycles = read_cycles(data, description)
+    cycles = read_rig_data(data, description)
     fitted = CyclesMethod.fit_cycles(text, description, cycles, settings)
     bundle = ModelBundle(fitted.method, fitted.manifest)
     result = TrainingResult(bundle, {}, {}, fitted.evaluation, {}, time.perf_counter() - clock)
@@ -81,32 +81,27 @@ def train_rig_and_track(
     return result, summary
 
 
-def read_rig_folder(method: CyclesMethod, folder: str | Path) -> Cycles:
-    """The cycles in ``folder`` read with the bundle's rig description; without its label file, unlabelled."""
-    rig = method.rig
-    if rig.label_source is not None and not (Path(folder) / rig.label_source).is_file():
-        rig = dataclasses.replace(rig, label_source=None)
-    return read_cycles(folder, rig)
+def read_rig_folder(method: CyclesMethod, data: str | Path) -> Cycles:
+    """The cycles in ``data`` read with the bundle's rig description (:func:`read_rig_data`)."""
+    return read_rig_data(data, method.rig)
 
 
 def score_cycles(bundle: ModelBundle, cycles: Cycles) -> dict[str, Any]:
     """``hydrowatch score --json``'s object for a cycles bundle (docs/formats.md).
 
-    ``source``, ``rig``, ``cycles`` and ``summary``. ``cycles[i]``: ``cycle`` (row, from 0), ``start_s``
-    (= cycle × cycle length, s) and ``components``: per component the verdict's ``state``, ``probability``,
-    ``probabilities``, ``novelty``, ``reason`` when ``unknown`` and, when labelled, ``truth`` (the label, or
-    ``unknown`` for a state the bundle was not trained on). ``summary``: ``cycles``, and per component ``counts``
-    and ``accuracy`` (None when unlabelled), ``model_version``.
+    ``source``, ``rig``, ``cycles`` and ``summary``. ``cycles[i]``: ``cycle`` (row, from 0), ``start_s`` (the
+    window's start for a long table or an imported file, else cycle × cycle length, s) and ``components``: per
+    component the verdict's ``state``, ``probability``, ``probabilities``, ``novelty``, ``reason`` when ``unknown``
+    and, when labelled, ``truth`` (the label, or ``unknown`` for a state the bundle was not trained on).
+    ``summary``: ``cycles``, and per component ``counts`` and ``accuracy`` (None when unlabelled), ``model_version``.
     """
     method = bundle.health_method
     if not isinstance(method, CyclesMethod):
         raise DataError(f"a rig folder is scored with a cycles bundle (train --rig). Got a {bundle.method} bundle.",
                         cycles.source)
     verdicts = method.judge_cycles(cycles.values)
-    trained = {c: {str(k) for k in m.classifier_.classes_} for c, m in method.models.items()}
-    truth = {c: [name if name in trained[c] else UNKNOWN for name in map(state_name, cycles.labels[c])]
-             for c in verdicts if c in cycles.labels}
-    length = method.rig.window.length_s
+    truth = method.truth(cycles.labels)
+    starts = start_times(cycles, method.rig)
     rows = []
     for i in range(len(cycles)):
         parts = {}
@@ -114,7 +109,7 @@ def score_cycles(bundle: ModelBundle, cycles: Cycles) -> dict[str, Any]:
             parts[c] = judged[i].to_dict()
             if c in truth:
                 parts[c]["truth"] = truth[c][i]
-        rows.append({"cycle": i, "start_s": i * length, "components": parts})
+        rows.append({"cycle": i, "start_s": float(starts[i]), "components": parts})
     counts = {c: {s: sum(v.state == s for v in judged) for s in sorted({v.state for v in judged})}
               for c, judged in verdicts.items()}
     accuracy = {c: (sum(v.state == t for v, t in zip(judged, truth[c])) / len(judged) if c in truth else None)

@@ -15,6 +15,8 @@ with its reason.
 The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
 ``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
 when it moves; an alias that does not exist yet is waited for. SIGINT/SIGTERM drains and exits.
+A cycles bundle (``train --rig``) judges a rig's whole cycles instead: ``hydro/<fleet>/*/cycles`` in,
+``…/cycle_health`` out (:mod:`services.scorer.cycles`).
 """
 
 from __future__ import annotations
@@ -274,6 +276,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     if model is None:
         return 0
     model.follow(stop)
+    if model.bundle.health_method.streams == "cycles":  # a rig's whole cycles, not sensor samples (docs/rigs.md)
+        from services.scorer.cycles import run_cycles
+
+        return run_cycles(model, args, stop, NAME)
     units = _Units(args, model.bundle)
     scorer = _scorer(model, units, args)
     forecasts = _forecasts(model, args)

@@ -1,20 +1,21 @@
 """Per-cycle verdicts per component of any rig (docs/rigs.md, issue 17): the ``cycles`` method.
 
-Trained from a rig description's imported cycles (``hydrowatch train --rig NAME|FILE --data FOLDER``, the wide
-layout, :func:`hydrowatch.io.wide.read_cycles`), not from labelled recordings: every component the description
+Trained from a rig description's imported cycles (``hydrowatch train --rig NAME|FILE --data PATH``,
+:func:`hydrowatch.io.rig_cycles.read_rig_data`), not from labelled recordings: every component the description
 labels (``[labels.<component>]``, flags excluded) gets its own open-set classifier
 (:mod:`hydrowatch.methods.cycles.train`), so each cycle has one verdict per component with that component's states,
 probabilities and ``unknown`` (:mod:`hydrowatch.cycles.openset`). Bundle folder: ``cycles/rig.toml`` (the
-description it was trained with, which reads the data it scores) and ``cycles/model.pkl`` (the fitted
-classifiers, scikit-learn objects: a pickle, so load only bundles you trust, as any MLflow model).
+description it was trained with, which reads the data it scores) and ``cycles/model.json`` (the fitted
+classifiers' parameters and arrays, no pickle; :mod:`hydrowatch.cycles.state`).
 
-The method does not stream yet: :meth:`CyclesMethod.online` refuses, and so does :meth:`CyclesMethod.score` of a
-plant recording; :meth:`CyclesMethod.judge_cycles` judges cycles (``hydrowatch score`` of a wide folder).
+:meth:`CyclesMethod.judge_cycles` judges cycles: ``hydrowatch score`` of a rig's data, and the scorer service of
+``rig_cycles`` messages (:attr:`CyclesMethod.streams` is ``cycles``, :mod:`hydrowatch.training.cycle_stream`).
+:meth:`CyclesMethod.online` (sensor samples) refuses, and so does :meth:`CyclesMethod.score` of a plant recording.
 """
 
 from __future__ import annotations
 
-import pickle
+import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -22,9 +23,16 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
+from hydrowatch.cycles.state import from_json_tree, to_json_tree
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.methods.base import HealthMethod, MethodFit, OfflineScores, WindowJudge
-from hydrowatch.methods.cycles.train import component_data, component_states, evaluate_component, fit_component
+from hydrowatch.methods.cycles.train import (
+    component_data,
+    component_states,
+    evaluate_component,
+    fit_component,
+    state_name,
+)
 from hydrowatch.recording import Recording
 from hydrowatch.rig import RigDescription
 from hydrowatch.rig.description import rig_from_text
@@ -34,7 +42,12 @@ if TYPE_CHECKING:
     from hydrowatch.io.wide import Cycles
     from hydrowatch.training.options import TrainingSettings
 
-RIG_FILE, MODEL_FILE = "rig.toml", "model.pkl"
+RIG_FILE, MODEL_FILE = "rig.toml", "model.json"
+LEGACY_MODEL_FILE = "model.pkl"
+"""The pickle of scikit-learn objects bundles held before 2026-11-26: refused on loading."""
+FORMAT = 1
+"""Format of ``model.json``: per component the open-set classifier's parameters and arrays
+(:mod:`hydrowatch.cycles.state`)."""
 
 
 class CyclesMethod(HealthMethod):
@@ -47,11 +60,12 @@ class CyclesMethod(HealthMethod):
     models : dict of str to OpenSetComponent
         Per component, its fitted classifier.
     features : dict of str to str
-        Per component, the feature set chosen (``statistics`` or ``transients``).
+        Per component, the feature set chosen (``statistics``, ``transients`` or ``entropy``).
     """
 
     name: ClassVar[str] = "cycles"
     row_label: ClassVar[str] = "component"
+    streams: ClassVar[str] = "cycles"
 
     def __init__(self, rig_text: str, models: dict[str, OpenSetComponent], features: dict[str, str],
                  source: str = RIG_FILE) -> None:
@@ -101,24 +115,49 @@ class CyclesMethod(HealthMethod):
 
     @classmethod
     def load(cls, directory: Path, manifest: Mapping[str, Any]) -> CyclesMethod:
-        """``cycles/rig.toml`` and ``cycles/model.pkl`` under ``directory``."""
+        """``cycles/rig.toml`` and ``cycles/model.json`` under ``directory``.
+
+        Raises
+        ------
+        DataError
+            A missing or unreadable file, a ``model.json`` of another format, or a bundle written before
+            2026-11-26 whose classifiers are a pickle (``model.pkl``): refused, not unpickled (a pickle can run
+            code); train it again with ``train --rig``.
+        """
         folder = directory / cls.name
+        if not (folder / MODEL_FILE).is_file() and (folder / LEGACY_MODEL_FILE).is_file():
+            raise DataError(f"this cycles bundle stores its classifiers as a pickle ({LEGACY_MODEL_FILE}, hydrowatch "
+                            f"before 2026-11-26), which is no longer loaded (a pickle can run code). Train it again "
+                            f"with `hydrowatch train --rig {manifest.get('rig', 'RIG')} --data DATA --out DIR`.",
+                            str(folder))
         try:
             text = (folder / RIG_FILE).read_text(encoding="utf-8")
-            with (folder / MODEL_FILE).open("rb") as f:
-                blob = pickle.load(f)  # noqa: S301 - a bundle is trusted like any MLflow model (module docstring)
-        except (OSError, pickle.UnpicklingError, EOFError) as exc:
+            stored = json.loads((folder / MODEL_FILE).read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
             raise DataError(f"a cycles bundle must hold {RIG_FILE} and a readable {MODEL_FILE}. Got: {exc}.",
                             str(folder)) from None
-        return cls(text, blob["models"], blob["features"], str(folder / RIG_FILE))
+        if not isinstance(stored, dict) or stored.get("format") != FORMAT:
+            raise DataError(f"{MODEL_FILE} must be of format {FORMAT}. Got "
+                            f"{stored.get('format') if isinstance(stored, dict) else type(stored).__name__}.",
+                            str(folder / MODEL_FILE))
+        source = str(folder / MODEL_FILE)
+        try:
+            models = {c: OpenSetComponent.from_state(from_json_tree(tree, source, f"models.{c}"))
+                      for c, tree in stored["models"].items()}
+        except (KeyError, TypeError) as exc:
+            raise DataError(f"{MODEL_FILE} must hold every fitted part of each component's classifier. Got none "
+                            f"for {exc}.", source) from None
+        return cls(text, models, dict(stored["features"]), str(folder / RIG_FILE))
 
     def save(self, directory: Path) -> list[Path]:
-        """``cycles/rig.toml`` and ``cycles/model.pkl`` under ``directory``."""
+        """``cycles/rig.toml`` and ``cycles/model.json`` (every component's parameters and arrays, no pickle) under
+        ``directory``."""
         folder = directory / self.name
         folder.mkdir(parents=True, exist_ok=True)
         (folder / RIG_FILE).write_text(self.rig_text, encoding="utf-8")
-        with (folder / MODEL_FILE).open("wb") as f:
-            pickle.dump({"models": self.models, "features": self.features}, f, protocol=pickle.HIGHEST_PROTOCOL)
+        stored = {"format": FORMAT, "features": self.features,
+                  "models": {c: to_json_tree(m.to_state(), f"models.{c}") for c, m in self.models.items()}}
+        (folder / MODEL_FILE).write_text(json.dumps(stored, separators=(",", ":")), encoding="utf-8")
         return [folder / RIG_FILE, folder / MODEL_FILE]
 
     headline = property(lambda self: f"Per-cycle classifiers per component of rig {self.rig.name}")
@@ -151,6 +190,13 @@ class CyclesMethod(HealthMethod):
                       for s, q, n in zip(states, p, novelty)]
         return out
 
+    def truth(self, labels: Mapping[str, np.ndarray]) -> dict[str, list[str]]:
+        """Per component the models judge and ``labels`` has, each cycle's label as a state name, or ``unknown`` for
+        a state the component was not trained on (what a verdict is compared with)."""
+        trained = {c: {str(k) for k in m.classifier_.classes_} for c, m in self.models.items()}
+        return {c: [name if name in trained[c] else UNKNOWN for name in map(state_name, labels[c])]
+                for c in self.models if c in labels}
+
     def score(self, recording: Recording, smoothing: int = 1) -> OfflineScores:
         """Refused: the method judges a rig's cycles (:meth:`judge_cycles`), not a plant recording."""
         raise DataError(f"a cycles bundle scores the cycles of rig {self.rig.name!r}: give `hydrowatch score` the "
@@ -158,7 +204,8 @@ class CyclesMethod(HealthMethod):
 
     def online(self, *, smoothing: int = 1,
                unit_method: Callable[[str], HealthMethod | None] | None = None) -> WindowJudge:
-        """Refused: the scorer service streams recordings of the plant's channels; cycles bundles are scored
-        offline (``hydrowatch score``)."""
-        raise ParameterError("a cycles bundle is scored offline with `hydrowatch score --model M --data FOLDER`; "
-                             "the scorer service does not stream rig cycles yet.")
+        """Refused: a cycles bundle judges whole cycles (the scorer service takes them off
+        ``hydro/<fleet>/<machine>/cycles``, :attr:`streams`), not sensor samples."""
+        raise ParameterError("a cycles bundle judges a rig's whole cycles (rig_cycles messages on "
+                             "hydro/<fleet>/<machine>/cycles, e.g. `hydrowatch replay` of an `import --rig` file), "
+                             "not sensor samples.")

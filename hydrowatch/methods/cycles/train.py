@@ -2,10 +2,11 @@
 
 Everything here reuses :mod:`hydrowatch.cycles`: :class:`~hydrowatch.cycles.ComponentClassifier` (features →
 LDA), :class:`~hydrowatch.cycles.openset.OpenSetComponent` (``unknown``) and
-:func:`~hydrowatch.cycles.ordered_split` (the honest split). Per component the feature set (``statistics`` or
-``transients``) is the one with the better accuracy on the honest split *inside the cycles it is fitted on*
-(first 70 % of each class fit, last 30 % validate); a feature set the rig cannot make (no load change on the
-reference channel) is skipped. The evaluation fits on the first 70 % of each class's cycles in recording
+:func:`~hydrowatch.cycles.ordered_split` (the honest split). Per component the feature set (``statistics``,
+``transients`` or ``entropy``, the study's method) is the one with the better accuracy on the honest split
+*inside the cycles it is fitted on* (first 70 % of each class fit, last 30 % validate; ties go to the earlier in
+that order); a feature set the rig cannot make (no load change on the reference channel, no healthy cycle) is
+skipped. The evaluation fits on the first 70 % of each class's cycles in recording
 order and tests on the last 30 % (docs/rigs.md: random splits flatter every method).
 """
 
@@ -21,6 +22,7 @@ from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.metrics import confusion_matrix, per_class_recall
 from hydrowatch.rig import Label, RigDescription
+from hydrowatch.rig.description import label_text
 
 FAST_HZ = 10.0
 """Channels recorded at least this fast (Hz) make the ``transients`` features (slow ones have no load-change
@@ -30,9 +32,8 @@ PHASES = 6
 divides a rig's samples per cycle."""
 
 
-def state_name(value: Any) -> str:
-    """A label value as a state name: ``100`` for 100.0, ``2.5``, or the text of a named value."""
-    return f"{value:g}" if isinstance(value, int | float | np.floating) else str(value)
+state_name = label_text
+"""A label value as a state name: ``100`` for 100.0, ``2.5``, or the text of a named value."""
 
 
 def component_states(label: Label) -> list[str]:
@@ -53,25 +54,31 @@ class CycleData:
         The component's state per cycle.
     nuisance : ndarray, shape (n_cycles, n_others)
         The other components' label values (what the ``transients`` projection removes).
+    healthy : str
+        The component's healthy state (what the ``entropy`` features' reference models are fitted on).
     """
 
     values: np.ndarray
     states: np.ndarray
     nuisance: np.ndarray
+    healthy: str
 
     def part(self, index: np.ndarray) -> CycleData:
         """The cycles ``index`` (recording order kept)."""
-        return CycleData(self.values[index], self.states[index], self.nuisance[index])
+        return CycleData(self.values[index], self.states[index], self.nuisance[index], self.healthy)
 
 
-def classifier(features: str, rig: RigDescription) -> ComponentClassifier:
+def classifier(features: str, rig: RigDescription, healthy: str) -> ComponentClassifier:
     """An unfitted classifier of ``features`` for ``rig``'s channels (``statistics``: :data:`PHASES` phase means;
-    ``transients``: the fast channels, the load changes found on the first channel)."""
+    ``transients``: the fast channels, the load changes found on the first channel; ``entropy``: a reference model
+    per channel of role ``sensor``, on the cycles of the component's ``healthy`` state)."""
     names = rig.channels.names
     fast = [names.index(c) for c in rig.recorded_at_least(FAST_HZ)]
+    sensors = [names.index(c.name) for c in rig.channels if c.role == "sensor"]
     phases = next(k for k in range(PHASES, 0, -1) if rig.window.samples % k == 0)
-    return ComponentClassifier(features=features, grid_hz=rig.window.grid_hz, phases=phases,
-                               channels=(fast or None) if features == "transients" else None)
+    channels = {"transients": fast or None, "entropy": sensors or None}.get(features)
+    return ComponentClassifier(features=features, grid_hz=rig.window.grid_hz, phases=phases, channels=channels,
+                               healthy=healthy)
 
 
 def validation_accuracy(features: str, rig: RigDescription, data: CycleData) -> float:
@@ -79,7 +86,7 @@ def validation_accuracy(features: str, rig: RigDescription, data: CycleData) -> 
     fit_part, check = ordered_split(data.states)
     train = data.part(fit_part)
     try:
-        model = classifier(features, rig).fit(train.values, train.states, train.nuisance)
+        model = classifier(features, rig, data.healthy).fit(train.values, train.states, train.nuisance)
     except ParameterError:
         return float("nan")
     return float(np.mean(model.predict(data.values[check]) == data.states[check]))
@@ -94,15 +101,18 @@ def fit_component(rig: RigDescription, data: CycleData) -> tuple[OpenSetComponen
         raise ParameterError(f"no feature set of {list(FEATURES)} could be fitted on these cycles.")
     best = max(usable.values())
     features = next(f for f, s in usable.items() if s >= best - 1e-3)
-    model = OpenSetComponent(classifier(features, rig)).fit(data.values, data.states, data.nuisance)
+    model = OpenSetComponent(classifier(features, rig, data.healthy)).fit(data.values, data.states, data.nuisance)
     return model, features, scores
 
 
 def component_data(rig: RigDescription, values: np.ndarray, labels: dict[str, np.ndarray], component: str) -> CycleData:
     """A component's :class:`CycleData` from a rig's cycles and labels."""
     others = [c for c in rig.components if c != component]
-    nuisance = np.column_stack([labels[c].astype(float) for c in others]) if others else np.zeros((len(values), 1))
-    return CycleData(values, np.array([state_name(v) for v in labels[component]]), nuisance)
+    # each other component's level as a category number (names or numbers: the projection only compares levels)
+    nuisance = (np.column_stack([np.unique(labels[c], return_inverse=True)[1].astype(float) for c in others])
+                if others else np.zeros((len(values), 1)))
+    return CycleData(values, np.array([state_name(v) for v in labels[component]]), nuisance,
+                     state_name(rig.label(component).healthy))
 
 
 def evaluate_component(rig: RigDescription, data: CycleData, states: list[str]) -> dict[str, Any]:
