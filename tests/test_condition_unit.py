@@ -66,3 +66,24 @@ def test_the_supply_identified_from_a_noisy_duty_cycle_is_not_biased(development
     monkeypatch.setattr(unit_module, "MIN_HELD", 10**9)  # no noise measurement: the unweighted fit of before
     unweighted = identify_unit(healthy, trained)
     assert level_severity("load", "warning", unweighted.parameters) / truth > 1.2
+
+
+def test_the_valve_fit_leaves_the_local_minimum_on_the_relief_ridge(monkeypatch) -> None:
+    # Unit 14 of population seed 2032 (relief 1.17 x, valve gain 1.38 x the first unit's), 300 s of its healthy
+    # duty cycle: one start from the first unit's parameters stopped at Pc ~1.0 x with a stiff relief (Kr 2.3 x)
+    rng = np.random.default_rng(2032)
+    units = []
+    for _ in range(14):
+        unit = random_unit(rng)
+        later_day(unit, rng)
+        units.append(unit)
+    trained, unit = units[0], units[13]
+    healthy = raw_windows(unit, duty_cycle(300.0, (0.5, 3.5), seed=65_033), 65_032)
+    truth = level_severity("load", "alert", unit)
+    fit = identify_unit(healthy, trained)
+    monkeypatch.setattr(unit_module, "RIDGE_STARTS", (0.0,))
+    single = identify_unit(healthy, trained)
+    assert fit.rms_after["valve"] < 0.97 * single.rms_after["valve"]
+    assert fit.parameters.Pc / unit.Pc == pytest.approx(1.0, abs=0.06)
+    assert level_severity("load", "alert", fit.parameters) / truth == pytest.approx(1.0, abs=0.06)
+    assert abs(level_severity("load", "alert", single.parameters) / truth - 1.0) > 0.1
