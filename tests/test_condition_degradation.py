@@ -8,11 +8,15 @@ import pytest
 from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
+    DETERMINED_STEP,
     attributed_valve_fault,
     degradation_index,
     features_degradation,
     severity_standard_error,
+    window_degradation,
 )
+from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.parity import VALVE_HYPOTHESES
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.faults import (
@@ -23,6 +27,7 @@ from hydrowatch.plant.faults import (
     severity_for_speed_drop,
     speed_drop,
 )
+from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.population import random_unit
 
 W = 1000
@@ -131,3 +136,23 @@ def test_invalid_windows_have_no_index_and_json_leaves_them_out(unit_case):
     lo, hi = item["load"]["ci95"]
     assert lo <= item["load"]["value"] <= hi
     assert LEVELS["alert"] == ALERT_DROP
+
+
+def test_a_window_whose_fit_does_not_determine_the_part_has_no_index_for_it():
+    # three windows blaming pump_leak at severity 0.6; the second's fit would rise by only half its MSE for a
+    # severity 0.1 off (a flat valley: the pump far from its limit), the third's by exactly its MSE (determined)
+    mse = 1e-4
+    curvature = np.array([5.0, 0.5 * mse / DETERMINED_STEP**2, mse / DETERMINED_STEP**2])
+    severity = {f: np.full(3, 0.6 if f == "pump_leak" else 0.0) for f in FAULTS}
+    fits = ParityEstimates(severity, {"load": np.full(3, mse), "motor": np.full(3, mse),
+                                      **{f: np.full(3, mse) for f in VALVE_HYPOTHESES}},
+                           {f: curvature if f == "pump_leak" else np.full(3, 5.0) for f in FAULTS})
+    nominal = PlantParameters()
+    d = window_degradation(fits, np.ones(3, dtype=bool), nominal, 124, ("load", "motor", "valve"),
+                           blamed=np.full(3, VALVE_HYPOTHESES.index("pump_leak")))
+    want = float(degradation_index("pump_leak", 0.6, nominal))
+    assert d.value["pump_leak"][0] == pytest.approx(want) and d.value["pump_leak"][2] == pytest.approx(want)
+    assert np.isnan(d.value["pump_leak"][1]) and np.isnan(d.low["pump_leak"][1]) and np.isnan(d.history("pump_leak")[1])
+    assert d.measured["pump_leak"].tolist() == [True, False, True]
+    assert "pump_leak" not in d.window(1) and d.window(1)["load"]["value"] == 0.0  # the other parts keep theirs
+    assert d.value["valve_coil"].tolist() == [0.0, 0.0, 0.0]  # not blamed: 0, as before
