@@ -12,6 +12,7 @@ from hydrowatch.condition.degradation import (
     attributed_valve_fault,
     degradation_index,
     features_degradation,
+    pool_misfit,
     severity_standard_error,
     window_degradation,
 )
@@ -77,17 +78,43 @@ def test_standard_error_matches_the_scatter_of_a_least_squares_slope():
 
 
 def test_valve_attribution_pools_windows_and_skips_invalid_ones():
-    # relief_spring explains windows 0-3 better (×2), valve_coil windows 4-9 (×2)
+    # relief_spring explains windows 0-3 better (×2), valve_coil windows 4-9 (×2), each at one steady severity
     mse = {"pump_leak": np.full(10, 5.0), "relief_spring": np.r_[np.full(4, 0.5), np.full(6, 1.2)],
            "valve_coil": np.r_[np.full(4, 1.0), np.full(6, 0.6)], "valve_leak": np.full(10, 5.0)}
+    steady = {f: np.full(10, 0.3) for f in mse}
+    curvature = {f: np.full(10, 10.0) for f in mse}
     valid = np.ones(10, dtype=bool)
     valid[2] = False
-    one = attributed_valve_fault(mse, valid, pool=1)
+    one = attributed_valve_fault(steady, mse, curvature, valid, pool=1)
     assert one.tolist() == [1, 1, -1, 1, 2, 2, 2, 2, 2, 2]
-    pooled = attributed_valve_fault(mse, valid, pool=10)
+    pooled = attributed_valve_fault(steady, mse, curvature, valid, pool=10)
     # Σ log: relief 3·ln 0.5 + k·ln 1.2 against coil k·ln 0.6 after k windows of the second kind: flips at k = 4
     assert pooled[[4, 5, 7, 9]].tolist() == [1, 1, 2, 2]
     assert pooled[2] == -1
+
+
+def test_valve_attribution_blames_the_part_whose_windows_agree_on_one_severity():
+    # relief_spring explains every window alone a little better (MSE 0.9 against 1.0), but only with a severity
+    # that jumps with the command (0.2, 0.6, 0.2, …); valve_coil's is one steady wear trend (0.30 → 0.39)
+    n = 12
+    mse = {"pump_leak": np.full(n, 5.0), "relief_spring": np.full(n, 0.9), "valve_coil": np.full(n, 1.0),
+           "valve_leak": np.full(n, 5.0)}
+    severity = {f: np.full(n, 0.3) for f in mse}
+    severity["relief_spring"] = np.where(np.arange(n) % 2 == 0, 0.2, 0.6)
+    severity["valve_coil"] = 0.3 + 0.008 * np.arange(n)
+    curvature = {f: np.full(n, 10.0) for f in mse}
+    valid = np.ones(n, dtype=bool)
+    assert set(attributed_valve_fault(severity, mse, curvature, valid, pool=1).tolist()) == {1}  # window by window
+    pooled = attributed_valve_fault(severity, mse, curvature, valid, pool=6)
+    assert pooled[:2].tolist() == [1, 1]  # one or two windows: a line through them explains any severities
+    assert (pooled[2:] == 2).all()
+    # the misfit: Σ log(MSE + c·(ŝ − trend)²); a steady trend costs nothing beyond the free fits
+    assert pool_misfit(severity["valve_coil"][:6], mse["valve_coil"][:6], curvature["valve_coil"][:6]) == (
+        pytest.approx(6 * np.log(1.0)))
+    x, jumpy = np.arange(6.0), severity["relief_spring"][:6]
+    r = jumpy - np.polyval(np.polyfit(x, jumpy, 1), x)  # equal weights c / MSE: the ordinary least-squares line
+    assert pool_misfit(jumpy, mse["relief_spring"][:6], curvature["relief_spring"][:6]) == pytest.approx(
+        np.sum(np.log(0.9 + 10.0 * r**2))) and np.sum(np.log(0.9 + 10.0 * r**2)) > 0.0
 
 
 @pytest.fixture(scope="module")
