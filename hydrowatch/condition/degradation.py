@@ -72,7 +72,7 @@ DETERMINED_STEP = 0.1
 """Severity step (on the fault's scale) by which a window's fit must tell its estimate from a wrong one: a window
 *determines* a part when a severity this far off would at least double its MSE (c·step² ≥ MSE_min). Elsewhere the
 window has no index for the part (NaN: absent from ``score --json``'s window, left out of the forecast). On the
-duty cycle only pump_leak has such windows (where the pump is far from its limit, 6–20 % of a wearing pump's
+duty cycle only pump_leak has such windows (where the pump is far from its limit, 6–28 % of a wearing pump's
 windows): their index was off by 0.15–0.32 on average (the severity search stops in a flat valley), against
 0.005–0.07 for the windows that determine it (seeds 7 and 2027); load, motor_leak, valve_leak, valve_coil and
 relief_spring fits passed the test ≥ 10 times over in every window looked at."""
