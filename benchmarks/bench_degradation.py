@@ -12,7 +12,9 @@ linear on even units and accelerating (``exp``) on odd ones, and one healthy mac
 
 Per fault kind it prints:
 
-- ``index MAE``: mean |index − true index| over the path's windows (median and worst unit);
+- ``index MAE``: mean |index − true index| over the path's windows with an index (median and worst unit), and
+  ``indexed``: the smallest share of a path's windows that have one (invalid windows and windows whose fit does
+  not determine the part have none);
 - ``others max``: the largest (signed: false wear, not "better than new") index any *other* component reads on
   that path (worst unit), and the share of windows
   where one reads above 0.15;
@@ -135,6 +137,7 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         v = d.value[fault]
         others = np.nanmax(np.stack([d.value[f] for f in FAULTS if f != fault]), axis=0)  # false *wear*: signed
         row = {"duration_min": path.duration_s / 60.0, "mae": float(np.nanmean(np.abs(v - truth))),
+               "indexed": float(np.mean(np.isfinite(v))),
                "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15))}
         now = int(np.argmax(truth >= 0.5))
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
@@ -180,13 +183,14 @@ def main() -> None:
             print(f"unit {k}: {time.time() - t0:.0f} s", flush=True)
     print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
           f"commissioned on {args.commission}")
-    print(f"{'fault':14} {'index MAE med/worst':>20} {'others max':>10} {'>0.15':>7} {'fcst err med/worst':>19} "
-          f"{'covered':>8} {'no fcst':>8}")
+    print(f"{'fault':14} {'index MAE med/worst':>20} {'indexed':>8} {'others max':>10} {'>0.15':>7} "
+          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8}")
     for fault in FAULTS:
         rows = [u["paths"][fault] for u in units]
         mae = np.array([r["mae"] for r in rows])
         err = np.array([np.inf if r["forecast_err"] is None else r["forecast_err"] for r in rows])
-        print(f"{fault:14} {np.median(mae):9.3f} / {mae.max():.3f} {max(r['others_max'] for r in rows):10.3f} "
+        print(f"{fault:14} {np.median(mae):9.3f} / {mae.max():.3f} {min(r['indexed'] for r in rows):8.0%} "
+              f"{max(r['others_max'] for r in rows):10.3f} "
               f"{max(r['others_share'] for r in rows):7.1%} {np.median(err):9.1%} / {err.max():6.1%} "
               f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d}")
     soonest = [u["healthy_soonest_s"] for u in units]

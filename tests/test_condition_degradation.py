@@ -8,11 +8,16 @@ import pytest
 from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
+    DETERMINED_STEP,
     attributed_valve_fault,
     degradation_index,
     features_degradation,
+    pool_misfit,
     severity_standard_error,
+    window_degradation,
 )
+from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.parity import VALVE_HYPOTHESES
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.faults import (
@@ -23,6 +28,7 @@ from hydrowatch.plant.faults import (
     severity_for_speed_drop,
     speed_drop,
 )
+from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.population import random_unit
 
 W = 1000
@@ -72,17 +78,43 @@ def test_standard_error_matches_the_scatter_of_a_least_squares_slope():
 
 
 def test_valve_attribution_pools_windows_and_skips_invalid_ones():
-    # relief_spring explains windows 0-3 better (×2), valve_coil windows 4-9 (×2)
+    # relief_spring explains windows 0-3 better (×2), valve_coil windows 4-9 (×2), each at one steady severity
     mse = {"pump_leak": np.full(10, 5.0), "relief_spring": np.r_[np.full(4, 0.5), np.full(6, 1.2)],
            "valve_coil": np.r_[np.full(4, 1.0), np.full(6, 0.6)], "valve_leak": np.full(10, 5.0)}
+    steady = {f: np.full(10, 0.3) for f in mse}
+    curvature = {f: np.full(10, 10.0) for f in mse}
     valid = np.ones(10, dtype=bool)
     valid[2] = False
-    one = attributed_valve_fault(mse, valid, pool=1)
+    one = attributed_valve_fault(steady, mse, curvature, valid, pool=1)
     assert one.tolist() == [1, 1, -1, 1, 2, 2, 2, 2, 2, 2]
-    pooled = attributed_valve_fault(mse, valid, pool=10)
+    pooled = attributed_valve_fault(steady, mse, curvature, valid, pool=10)
     # Σ log: relief 3·ln 0.5 + k·ln 1.2 against coil k·ln 0.6 after k windows of the second kind: flips at k = 4
     assert pooled[[4, 5, 7, 9]].tolist() == [1, 1, 2, 2]
     assert pooled[2] == -1
+
+
+def test_valve_attribution_blames_the_part_whose_windows_agree_on_one_severity():
+    # relief_spring explains every window alone a little better (MSE 0.9 against 1.0), but only with a severity
+    # that jumps with the command (0.2, 0.6, 0.2, …); valve_coil's is one steady wear trend (0.30 → 0.39)
+    n = 12
+    mse = {"pump_leak": np.full(n, 5.0), "relief_spring": np.full(n, 0.9), "valve_coil": np.full(n, 1.0),
+           "valve_leak": np.full(n, 5.0)}
+    severity = {f: np.full(n, 0.3) for f in mse}
+    severity["relief_spring"] = np.where(np.arange(n) % 2 == 0, 0.2, 0.6)
+    severity["valve_coil"] = 0.3 + 0.008 * np.arange(n)
+    curvature = {f: np.full(n, 10.0) for f in mse}
+    valid = np.ones(n, dtype=bool)
+    assert set(attributed_valve_fault(severity, mse, curvature, valid, pool=1).tolist()) == {1}  # window by window
+    pooled = attributed_valve_fault(severity, mse, curvature, valid, pool=6)
+    assert pooled[:2].tolist() == [1, 1]  # one or two windows: a line through them explains any severities
+    assert (pooled[2:] == 2).all()
+    # the misfit: Σ log(MSE + c·(ŝ − trend)²); a steady trend costs nothing beyond the free fits
+    assert pool_misfit(severity["valve_coil"][:6], mse["valve_coil"][:6], curvature["valve_coil"][:6]) == (
+        pytest.approx(6 * np.log(1.0)))
+    x, jumpy = np.arange(6.0), severity["relief_spring"][:6]
+    r = jumpy - np.polyval(np.polyfit(x, jumpy, 1), x)  # equal weights c / MSE: the ordinary least-squares line
+    assert pool_misfit(jumpy, mse["relief_spring"][:6], curvature["relief_spring"][:6]) == pytest.approx(
+        np.sum(np.log(0.9 + 10.0 * r**2))) and np.sum(np.log(0.9 + 10.0 * r**2)) > 0.0
 
 
 @pytest.fixture(scope="module")
@@ -131,3 +163,23 @@ def test_invalid_windows_have_no_index_and_json_leaves_them_out(unit_case):
     lo, hi = item["load"]["ci95"]
     assert lo <= item["load"]["value"] <= hi
     assert LEVELS["alert"] == ALERT_DROP
+
+
+def test_a_window_whose_fit_does_not_determine_the_part_has_no_index_for_it():
+    # three windows blaming pump_leak at severity 0.6; the second's fit would rise by only half its MSE for a
+    # severity 0.1 off (a flat valley: the pump far from its limit), the third's by exactly its MSE (determined)
+    mse = 1e-4
+    curvature = np.array([5.0, 0.5 * mse / DETERMINED_STEP**2, mse / DETERMINED_STEP**2])
+    severity = {f: np.full(3, 0.6 if f == "pump_leak" else 0.0) for f in FAULTS}
+    fits = ParityEstimates(severity, {"load": np.full(3, mse), "motor": np.full(3, mse),
+                                      **{f: np.full(3, mse) for f in VALVE_HYPOTHESES}},
+                           {f: curvature if f == "pump_leak" else np.full(3, 5.0) for f in FAULTS})
+    nominal = PlantParameters()
+    d = window_degradation(fits, np.ones(3, dtype=bool), nominal, 124, ("load", "motor", "valve"),
+                           blamed=np.full(3, VALVE_HYPOTHESES.index("pump_leak")))
+    want = float(degradation_index("pump_leak", 0.6, nominal))
+    assert d.value["pump_leak"][0] == pytest.approx(want) and d.value["pump_leak"][2] == pytest.approx(want)
+    assert np.isnan(d.value["pump_leak"][1]) and np.isnan(d.low["pump_leak"][1]) and np.isnan(d.history("pump_leak")[1])
+    assert d.measured["pump_leak"].tolist() == [True, False, True]
+    assert "pump_leak" not in d.window(1) and d.window(1)["load"]["value"] == 0.0  # the other parts keep theirs
+    assert d.value["valve_coil"].tolist() == [0.0, 0.0, 0.0]  # not blamed: 0, as before

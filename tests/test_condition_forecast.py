@@ -55,10 +55,24 @@ def test_a_replaced_part_starts_a_new_trend():
     assert f.reset_at_s == pytest.approx(2000.0, abs=3 * HOP)
     truth = 2000.0 + 4000.0 - t[-1]  # the new part: 0.5 per 2000 s, at 0.5 now
     assert f.alert_in_s == pytest.approx(truth, rel=0.1) and f.ci95[0] <= truth <= f.ci95[1]
-    assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.75), np.full(10, 0.05)]) == 20
-    assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.55)]) == 0  # a dip, not back near 0
+    assert reset_start(np.r_[np.full(10, 0.7), np.full(10, 0.75), np.full(30, 0.05)]) == 20
+    assert reset_start(np.r_[np.full(10, 0.7), np.full(30, 0.55)]) == 0  # a dip, not back near 0
+    dropout = np.r_[np.full(40, 0.45), np.full(15, 0.08), np.full(40, 0.45)]  # 75 s reading 0.08, then back
+    assert reset_start(dropout) == 0
     burst = np.r_[np.zeros(30), np.full(4, 1.2), np.zeros(30)]  # four outlier windows are no part replaced
     assert reset_start(burst) == 0
+
+
+def test_bursts_of_an_index_that_scatters_with_the_command_are_no_reset():
+    # pump_leak on a duty cycle: a minute of one phase reads ~0.4 high, the holds around it read the truth
+    t = np.arange(0.0, 3000.0, HOP)
+    truth = 0.1 + 0.4 * t / 3000.0  # 0.1 -> 0.5; alert at 6750 s
+    burst = (np.arange(t.size) % 48) >= 36  # 60 s of every 240 s
+    v = _noisy(truth + 0.4 * burst, 6)
+    assert reset_start(v) == 0  # the 60 s before each burst's end stand 0.4 above the 30 s after it
+    f = forecast_alert(t, v)
+    assert f.reset_at_s is None and f.alert_in_s == pytest.approx(6750.0 - t[-1], rel=0.2)
+    assert f.ci95[0] <= 6750.0 - t[-1] <= f.ci95[1]
 
 
 def test_gaps_and_clock_jumps_count_as_operating_time():

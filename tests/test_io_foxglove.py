@@ -15,7 +15,7 @@ from hydrowatch.cli import main
 from hydrowatch.io import McapWriter
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.io.foxglove import FoxgloveWriter
-from hydrowatch.schemas import HEALTH_VERDICT, KL_WINDOW, STATUS, wire_schema
+from hydrowatch.schemas import FORECAST, HEALTH_VERDICT, KL_WINDOW, STATUS, wire_schema
 
 KEY = "hydro/f1/m1"
 RECEIVED_NS = 1_764_000_000_000_000_000
@@ -49,9 +49,21 @@ def _kl(start: float) -> pa.RecordBatch:
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(KL_WINDOW))
 
 
+def _forecast(start: float, alert_in_s: float) -> pa.RecordBatch:
+    """A scorer's forecast after the window at ``start``: load wearing, valve_coil too flat (its nulls)."""
+    rows = [{"window_start": start, "fault": "load", "alert_in_s": alert_in_s, "low_s": 0.8 * alert_in_s,
+             "high_s": 1.3 * alert_in_s, "rate_per_h": 0.61, "level": 0.52, "model": "exp", "points": 340,
+             "reset_at": None, "reason": None, "history_windows": 352, "model_version": "sha256:abc"},
+            {"window_start": start, "fault": "valve_coil", "alert_in_s": None, "low_s": None, "high_s": None,
+             "rate_per_h": 0.003, "level": 0.01, "model": "linear", "points": 340, "reset_at": None,
+             "reason": "too flat: the index rose 0.001 < 0.1 over the history", "history_windows": 352,
+             "model_version": "sha256:abc"}]
+    return pa.RecordBatch.from_pylist(rows, schema=wire_schema(FORECAST))
+
+
 @pytest.fixture
 def recording(tmp_path: Path) -> Path:
-    """A recorder-like file: 10 sensor chunks (1000 samples), 2 verdicts, 2 kl windows, 1 heartbeat."""
+    """A recorder-like file: 10 sensor chunks (1000 samples), 2 verdicts, 2 kl windows, 2 forecasts, 1 heartbeat."""
     path = tmp_path / "m1.mcap"
     status = pa.RecordBatch.from_pylist([{"service": "plant", "machine": "m1", "time": 1.7e9, "status": "running",
                                           "messages_in": 0, "messages_out": 3, "messages_dropped": 0,
@@ -62,6 +74,7 @@ def recording(tmp_path: Path) -> Path:
         for j, (state, p) in enumerate((("healthy", 0.9), ("load_alert", 0.75))):
             writer.write(f"{KEY}/kl", _kl(2.0 * j), RECEIVED_NS + 10**9 * (j + 2))
             writer.write(f"{KEY}/health", _verdict(2.0 * j, state, p), RECEIVED_NS + 10**9 * (j + 2))
+            writer.write(f"{KEY}/forecast", _forecast(2.0 * j, 1820.0 - 2.0 * j), RECEIVED_NS + 10**9 * (j + 2))
         writer.write(f"{KEY}/status", status, RECEIVED_NS)
         writer.add_metadata("rig", {"name": "test bench"})
     return path
@@ -71,6 +84,18 @@ def _read(path: Path) -> tuple[dict, dict]:
     """Foxglove topic → [(log ns, publish ns, message)], and the file's metadata records; every message is
     checked against its channel's JSON Schema (properties, required, types)."""
     types = {"number": (int, float), "string": str, "object": dict}
+
+    def conforms(body: dict, spec: dict) -> bool:  # a map of objects (forecast parts, degradation) value by value
+        for k, v in body.items():
+            inner = spec["properties"][k]
+            if not isinstance(v, types[inner["type"]]):
+                return False
+            each = inner.get("additionalProperties")
+            if isinstance(each, dict) and "properties" in each and not all(
+                    conforms(sub, inner.get("properties", {}).get(name, each)) for name, sub in v.items()):
+                return False
+        return True
+
     out: dict[str, list] = {}
     with open(path, "rb") as f:
         reader = make_reader(f)
@@ -79,7 +104,7 @@ def _read(path: Path) -> tuple[dict, dict]:
             spec = json.loads(schema.data)
             body = json.loads(message.data)
             assert set(spec["required"]) <= set(body) <= set(spec["properties"]), (channel.topic, body)
-            assert all(isinstance(v, types[spec["properties"][k]["type"]]) for k, v in body.items())
+            assert conforms(body, spec), (channel.topic, body)
             out.setdefault(channel.topic, []).append((message.log_time, message.publish_time, body))
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     return out, metadata
@@ -90,9 +115,11 @@ def test_export_foxglove_writes_json_that_reads_back_with_the_same_values(
     out = tmp_path / "m1.foxglove.mcap"
     assert main(["export", str(recording), "--foxglove", "--out", str(out)]) == 0
     line = capsys.readouterr().out
-    assert "1000 samples, 2 verdicts, 2 relative-entropy windows on 3 channels" in line and "left out 1 status" in line
+    assert "1000 samples, 2 verdicts, 2 relative-entropy windows, 2 forecasts on 4 channels" in line
+    assert "left out 1 status" in line
     got, metadata = _read(out)
-    assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 1000, f"/{KEY}/health": 2, f"/{KEY}/kl": 2}
+    assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 1000, f"/{KEY}/health": 2, f"/{KEY}/kl": 2,
+                                                   f"/{KEY}/forecast": 2}
     assert metadata["hydrowatch"]["fleet"] == "f1" and metadata["rig"] == {"name": "test bench"}
 
     samples = got[f"/{KEY}/sensors"]
@@ -113,6 +140,16 @@ def test_export_foxglove_writes_json_that_reads_back_with_the_same_values(
     assert kl["relative_entropy"]["speed"] == {"healthy": pytest.approx(2.2), "load_alert": pytest.approx(2.3)}
     assert set(kl["relative_entropy"]) == {"flow", "speed", "torque"}
 
+    (log0, publish0, _), (log1, _, forecast) = got[f"/{KEY}/forecast"]
+    assert (log0, log1, publish0) == (0, 2_000_000_000, RECEIVED_NS + 2 * 10**9)  # window_start: what it counts from
+    assert (forecast["window_start"], forecast["history_windows"]) == (2.0, 352)
+    assert forecast["model_version"] == "sha256:abc"
+    assert forecast["parts"]["load"] == {"alert_in_s": 1818.0, "low_s": pytest.approx(1454.4),
+                                         "high_s": pytest.approx(2363.4), "rate_per_h": 0.61, "level": 0.52,
+                                         "model": "exp", "points": 340}  # null reset_at and reason left out
+    coil = forecast["parts"]["valve_coil"]
+    assert "alert_in_s" not in coil and "low_s" not in coil and coil["reason"].startswith("too flat")
+
 
 def test_schemas_name_units_and_list_the_states_for_path_completion(recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "fox.mcap"
@@ -128,6 +165,11 @@ def test_schemas_name_units_and_list_the_states_for_path_completion(recording: P
         "properties"]) == set(STATES)
     assert {c.topic: c.metadata["hydrowatch.key"] for c in summary.channels.values()}[f"/{KEY}/health"] == (
         f"{KEY}/health")
+    parts = schemas["hydrowatch.forecast"]["properties"]["parts"]
+    assert set(parts["properties"]) == {"load", "valve_coil"} and "parts" in schemas["hydrowatch.forecast"]["required"]
+    part = parts["additionalProperties"]["properties"]
+    assert part["alert_in_s"]["description"].endswith("[s]") and part["rate_per_h"]["description"].endswith("[1/h]")
+    assert (part["model"]["type"], part["points"]["type"]) == ("string", "number")
 
 
 def test_export_foxglove_refuses_what_is_not_a_hydrowatch_recording(
@@ -163,13 +205,16 @@ def test_recorder_option_writes_the_same_json_as_the_export(tmp_path: Path) -> N
     from services.recorder.files import RecordingFiles
 
     sent = [(f"{KEY}/sensors", _chunk(i)) for i in range(4)] + [(f"{KEY}/health", _verdict(0.0, "healthy", 0.9)),
-                                                                 (f"{KEY}/kl", _kl(0.0))]
+                                                                 (f"{KEY}/kl", _kl(0.0)),
+                                                                 (f"{KEY}/forecast", _forecast(0.0, 600.0))]
     files = RecordingFiles(tmp_path / "rec", flush_s=0.01, foxglove=True)
     files.write_many([Message(parse_key(k), b, encode_batch(b), RECEIVED_NS + i, 0) for i, (k, b) in enumerate(sent)])
     files.close()
     (path,) = (tmp_path / "rec" / "f1" / "m1").glob("*.foxglove.mcap")
     got, metadata = _read(path)
-    assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 400, f"/{KEY}/health": 1, f"/{KEY}/kl": 1}
+    assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 400, f"/{KEY}/health": 1, f"/{KEY}/kl": 1,
+                                                   f"/{KEY}/forecast": 1}
+    assert got[f"/{KEY}/forecast"][0][2]["parts"]["load"]["alert_in_s"] == 600.0
     assert metadata["hydrowatch"]["machine"] == "m1" and files.messages == len(sent)
     log_ns, publish_ns, sample = got[f"/{KEY}/sensors"][250]
     assert (log_ns, publish_ns) == (1_250_000_000, RECEIVED_NS + 2)

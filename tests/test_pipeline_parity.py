@@ -114,11 +114,16 @@ def test_parity_scores_give_a_degradation_index_per_fault_and_a_forecast(parity:
                 "pump_leak_warning": {"pump_leak": 0.5}}
     for r in parity["duty"]:
         result = score_recording(bundle, r)
-        values = {f: np.array([w["degradation"][f]["value"] for w in result["windows"]]) for f in FAULTS}
+        # a window whose fit does not determine a part has no index for it (pump_leak far from the pump's limit)
+        values = {f: np.array([w["degradation"].get(f, {"value": np.nan})["value"] for w in result["windows"]])
+                  for f in FAULTS}
         for fault in FAULTS:
             truth = expected[r.state].get(fault, 0.0)
-            tolerance = 0.15 if fault == "pump_leak" else 0.08  # pump leaks show only where the pump saturates
-            assert abs(np.median(values[fault]) - truth) < tolerance, (r.state, fault, np.median(values[fault]))
+            assert abs(np.nanmedian(values[fault]) - truth) < 0.08, (r.state, fault, np.nanmedian(values[fault]))
+        # load and motor_leak: every window; 11 of 12 windows of the pump_leak_warning machine determine its pump
+        assert np.isfinite(values["load"]).all() and np.isfinite(values["motor_leak"]).all()
+        if r.state == "pump_leak_warning":
+            assert np.mean(np.isfinite(values["pump_leak"])) >= 0.75
         lo, hi = result["windows"][0]["degradation"]["load"]["ci95"]
         assert lo <= result["windows"][0]["degradation"]["load"]["value"] <= hi
         forecast = result["summary"]["forecast"]

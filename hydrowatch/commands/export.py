@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="MCAP recording")
     parser.add_argument("--out", type=Path, required=True, help="file to write: .parquet or .csv (--foxglove: .mcap)")
     parser.add_argument("--foxglove", action="store_true",
-                        help="write samples, verdicts and relative entropies as JSON with JSON Schema (Foxglove)")
+                        help="write samples, verdicts, relative entropies and forecasts as JSON with JSON Schema "
+                             "(Foxglove)")
     parser.add_argument("--machine", help="which machine, when the file holds several (not with --foxglove)")
     parser.add_argument(
         "--recover", action="store_true", help="export the complete chunks of an unfinished file (writer killed)"

@@ -16,6 +16,10 @@ declaration in ``schemas/`` (descriptions carry the units):
   ``model_version``.
 - ``kl`` → one message per window, log time = ``window_end``: window bounds, ``model_version`` and
   ``relative_entropy`` ({sensor: {state: D [nats]}}).
+- ``forecast`` → one message per forecast, log time = ``window_start`` (the start of the machine's last window
+  with an index, which ``alert_in_s`` counts from): ``window_start`` [s], ``history_windows``,
+  ``model_version`` and ``parts`` ({fault: {alert_in_s [s], low_s, high_s, rate_per_h [1/h], level, model,
+  points, reset_at [s], reason}}; null fields left out), so Foxglove plots ``….forecast.parts.load.alert_in_s``.
 
 Every channel thus shares the recording's time base (sample time, s → ns). The time the message
 was logged in the source (a recorder's receive time) is kept as publish time. ``status``
@@ -41,8 +45,11 @@ from hydrowatch.schemas import schema_by_name
 
 JSON_ENCODING = "json"
 JSON_SCHEMA_ENCODING = "jsonschema"
-KINDS: dict[str, str] = {"sensors": "sensor_chunk", "health": "health_verdict", "kl": "kl_window"}
+KINDS: dict[str, str] = {"sensors": "sensor_chunk", "health": "health_verdict", "kl": "kl_window",
+                         "forecast": "forecast"}
 """Topic kinds written for Foxglove → the hydrowatch schema of their messages."""
+FORECAST_PART_FIELDS = ("alert_in_s", "low_s", "high_s", "rate_per_h", "level", "model", "points", "reset_at", "reason")
+"""Fields of a ``forecast`` row kept under its part's ``fault`` (the others describe the forecast as a whole)."""
 _JSON_TYPES = {"double": "number", "float": "number", "int64": "number", "int32": "number", "bool": "boolean",
                "string": "string"}
 
@@ -65,15 +72,15 @@ def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str
 
     Parameters
     ----------
-    kind : {"sensors", "health", "kl"}
+    kind : {"sensors", "health", "kl", "forecast"}
     example : mapping, optional
-        A first message: its ``probabilities`` states (health) or ``relative_entropy`` sensors and
-        states (kl) are listed as properties, so that Foxglove offers them in its path completion;
-        others are still allowed.
+        A first message: its ``probabilities`` states (health), ``relative_entropy`` sensors and
+        states (kl) or ``parts`` faults (forecast) are listed as properties, so that Foxglove offers
+        them in its path completion; others are still allowed.
     """
     declared = schema_by_name(KINDS[kind])
     replaced = {"sensors": set(), "health": {"probabilities", "degradation"},
-                "kl": {"sensor", "state", "relative_entropy"}}[kind]
+                "kl": {"sensor", "state", "relative_entropy"}, "forecast": {"fault", *FORECAST_PART_FIELDS}}[kind]
     properties = {f.name: _property(f) for f in declared if f.name not in replaced}
     required = [f.name for f in declared if not f.nullable and f.name not in replaced]
     title, description = f"hydrowatch.{KINDS[kind]}", declared.metadata[b"hydrowatch.description"].decode()
@@ -86,11 +93,19 @@ def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str
             "type": "object", "description": "Probability of every trained state, 0 to 1.",
             "properties": {s: number for s in example.get("probabilities", {})}, "additionalProperties": number}
         required.append("probabilities")
-        part = {"type": "object", "properties": {k: number for k in ("index", "low", "high")}}
+        part: dict[str, Any] = {"type": "object", "properties": {k: number for k in ("index", "low", "high")}}
         properties["degradation"] = {
             "type": "object", "description": "Degradation index of each part (0 healthy, 1 at the alert level) with "
                                              "its 95 % interval [1]; absent when the window has none.",
             "additionalProperties": part}
+    elif kind == "forecast":
+        part = {"type": "object", "properties": {f.name: _property(f) for f in declared
+                                                 if f.name in FORECAST_PART_FIELDS}}
+        properties["parts"] = {
+            "type": "object", "description": "Each part's forecast of the alert (index 1.0); fields as the forecast "
+                                             "schema's rows, a null one left out.",
+            "properties": {fault: part for fault in example.get("parts", {})}, "additionalProperties": part}
+        required.append("parts")
     else:
         per_state = {"type": "object", "additionalProperties": number}
         rows = example.get("relative_entropy", {})
@@ -150,7 +165,19 @@ def kl_windows(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[st
                                               "relative_entropy": rows}
 
 
-_CONVERT = {"sensors": sensor_samples, "health": verdicts, "kl": kl_windows}
+def forecasts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(log_time_ns, forecast)`` per forecast message: the rows (one per part) gathered under ``parts`` as
+    {fault: {alert_in_s, low_s, high_s, …}} (null and non-finite fields left out), log time = ``window_start``."""
+    found: dict[tuple[float, int, str], dict[str, dict[str, Any]]] = {}
+    for row in batch.to_pylist():
+        parts = found.setdefault((row["window_start"], row["history_windows"], row["model_version"]), {})
+        parts[row["fault"]] = {k: row[k] for k in FORECAST_PART_FIELDS if _finite(row[k])}
+    for (start, windows, version), parts in found.items():
+        yield _ns(start, where, "window_start"), {"window_start": start, "history_windows": windows,
+                                                  "model_version": version, "parts": parts}
+
+
+_CONVERT = {"sensors": sensor_samples, "health": verdicts, "kl": kl_windows, "forecast": forecasts}
 
 
 class FoxgloveWriter(McapWriter):
@@ -177,7 +204,7 @@ class FoxgloveWriter(McapWriter):
         Parameters
         ----------
         key : str
-            Its key expression; the last part picks the conversion (sensors, health, kl).
+            Its key expression; the last part picks the conversion (sensors, health, kl, forecast).
         batch : pyarrow.RecordBatch
             The decoded message.
         publish_time_ns : int, optional
@@ -229,7 +256,8 @@ class FoxgloveExport:
         per_kind = {kind: sum(n for t, n in self.written.items() if t.endswith(f"/{kind}")) for kind in KINDS}
         left_out = f"; left out {sum(self.skipped.values())} status messages" if self.skipped else ""
         return (f"wrote {self.out}: {per_kind['sensors']} samples, {per_kind['health']} verdicts, "
-                f"{per_kind['kl']} relative-entropy windows on {len(self.written)} channels "
+                f"{per_kind['kl']} relative-entropy windows, {per_kind['forecast']} forecasts on {len(self.written)} "
+                "channels "
                 f"(JSON with JSON Schema, for Foxglove) from {self.messages_in} messages{left_out}"
                 + (f"; {self.recovered}" if self.recovered else ""))
 
@@ -294,6 +322,8 @@ __all__ = [
     "FoxgloveExport",
     "FoxgloveWriter",
     "export_foxglove",
+    "FORECAST_PART_FIELDS",
+    "forecasts",
     "foxglove_topic",
     "json_schema",
     "kl_windows",
