@@ -189,7 +189,8 @@ class FoxgloveWriter(McapWriter):
     written : dict
         Foxglove topic → JSON messages written.
     skipped : dict
-        Key → messages left out (``status`` heartbeats).
+        Key → messages left out (kinds without a conversion: ``status`` heartbeats, ``expected``, ``cycles``,
+        ``cycle_health``).
     """
 
     def __init__(self, path: str | Path, **options: Any) -> None:
@@ -213,7 +214,7 @@ class FoxgloveWriter(McapWriter):
         Returns
         -------
         int
-            JSON messages written (0 for a skipped ``status`` message).
+            JSON messages written (0 for a message of a kind without a conversion, e.g. ``status``).
 
         Raises
         ------
@@ -254,7 +255,9 @@ class FoxgloveExport:
     def describe(self) -> str:
         """One line for people: what was written where."""
         per_kind = {kind: sum(n for t, n in self.written.items() if t.endswith(f"/{kind}")) for kind in KINDS}
-        left_out = f"; left out {sum(self.skipped.values())} status messages" if self.skipped else ""
+        kinds = sorted({key.rsplit("/", 1)[-1] for key in self.skipped})
+        left_out = (f"; left out {sum(self.skipped.values())} messages Foxglove is not given ({', '.join(kinds)})"
+                    if self.skipped else "")
         return (f"wrote {self.out}: {per_kind['sensors']} samples, {per_kind['health']} verdicts, "
                 f"{per_kind['kl']} relative-entropy windows, {per_kind['forecast']} forecasts on {len(self.written)} "
                 "channels "
