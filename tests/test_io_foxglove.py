@@ -116,7 +116,7 @@ def test_export_foxglove_writes_json_that_reads_back_with_the_same_values(
     assert main(["export", str(recording), "--foxglove", "--out", str(out)]) == 0
     line = capsys.readouterr().out
     assert "1000 samples, 2 verdicts, 2 relative-entropy windows, 2 forecasts on 4 channels" in line
-    assert "left out 1 status" in line
+    assert "left out 1 messages Foxglove is not given (status)" in line
     got, metadata = _read(out)
     assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 1000, f"/{KEY}/health": 2, f"/{KEY}/kl": 2,
                                                    f"/{KEY}/forecast": 2}
