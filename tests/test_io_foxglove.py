@@ -1,5 +1,5 @@
-"""``hydrowatch export --foxglove``: the same samples, verdicts and relative entropies as JSON with JSON Schema,
-read back with the mcap library as Foxglove would read them."""
+"""``hydrowatch export --foxglove``: the same samples, verdicts, relative entropies, forecasts, expected sensors and
+cycle verdicts as JSON with JSON Schema, read back with the mcap library as Foxglove would read them."""
 
 from __future__ import annotations
 
@@ -14,8 +14,17 @@ from mcap.reader import make_reader
 from hydrowatch.cli import main
 from hydrowatch.io import McapWriter
 from hydrowatch.io.codec import sensor_chunk_from_arrays
-from hydrowatch.io.foxglove import FoxgloveWriter
-from hydrowatch.schemas import FORECAST, HEALTH_VERDICT, KL_WINDOW, STATUS, wire_schema
+from hydrowatch.io.foxglove import FoxgloveWriter, export_foxglove
+from hydrowatch.schemas import (
+    CYCLE_VERDICT,
+    EXPECTED_WINDOW,
+    FORECAST,
+    HEALTH_VERDICT,
+    KL_WINDOW,
+    RIG_CYCLES,
+    STATUS,
+    wire_schema,
+)
 
 KEY = "hydro/f1/m1"
 RECEIVED_NS = 1_764_000_000_000_000_000
@@ -61,9 +70,26 @@ def _forecast(start: float, alert_in_s: float) -> pa.RecordBatch:
     return pa.RecordBatch.from_pylist(rows, schema=wire_schema(FORECAST))
 
 
+def _expected(start: float) -> pa.RecordBatch:
+    """A scorer's expected sensors of the 2 s window at ``start``: flow and torque, 20 points of 0.1 s each; the
+    torque's point 4 of the first window is NaN (a chart leaves it out)."""
+    points = np.arange(20, dtype=np.float32)
+    torque = 10.0 + points
+    if start == 0.0:
+        torque[4] = np.nan
+    rows = [{"window_start": start, "window_end": start + 2.0, "sensor": "flow", "unit": "L/min", "step": 0.1,
+             "measured": (start + 0.5 * points).tolist(), "expected": (start + 0.25 * points).tolist(),
+             "source": "valve relation", "model_version": "sha256:abc"},
+            {"window_start": start, "window_end": start + 2.0, "sensor": "torque", "unit": "N·m", "step": 0.1,
+             "measured": torque.tolist(), "expected": (torque - 1.0).tolist(), "source": "load relation",
+             "model_version": "sha256:abc"}]
+    return pa.RecordBatch.from_pylist(rows, schema=wire_schema(EXPECTED_WINDOW))
+
+
 @pytest.fixture
 def recording(tmp_path: Path) -> Path:
-    """A recorder-like file: 10 sensor chunks (1000 samples), 2 verdicts, 2 kl windows, 2 forecasts, 1 heartbeat."""
+    """A recorder-like file: 10 sensor chunks (1000 samples), 2 verdicts, 2 kl windows, 2 forecasts, 2 windows of
+    expected sensors (40 points), 1 heartbeat."""
     path = tmp_path / "m1.mcap"
     status = pa.RecordBatch.from_pylist([{"service": "plant", "machine": "m1", "time": 1.7e9, "status": "running",
                                           "messages_in": 0, "messages_out": 3, "messages_dropped": 0,
@@ -75,6 +101,7 @@ def recording(tmp_path: Path) -> Path:
             writer.write(f"{KEY}/kl", _kl(2.0 * j), RECEIVED_NS + 10**9 * (j + 2))
             writer.write(f"{KEY}/health", _verdict(2.0 * j, state, p), RECEIVED_NS + 10**9 * (j + 2))
             writer.write(f"{KEY}/forecast", _forecast(2.0 * j, 1820.0 - 2.0 * j), RECEIVED_NS + 10**9 * (j + 2))
+            writer.write(f"{KEY}/expected", _expected(2.0 * j), RECEIVED_NS + 10**9 * (j + 2))
         writer.write(f"{KEY}/status", status, RECEIVED_NS)
         writer.add_metadata("rig", {"name": "test bench"})
     return path
@@ -115,11 +142,11 @@ def test_export_foxglove_writes_json_that_reads_back_with_the_same_values(
     out = tmp_path / "m1.foxglove.mcap"
     assert main(["export", str(recording), "--foxglove", "--out", str(out)]) == 0
     line = capsys.readouterr().out
-    assert "1000 samples, 2 verdicts, 2 relative-entropy windows, 2 forecasts on 4 channels" in line
+    assert "1000 samples, 2 verdicts, 2 relative-entropy windows, 2 forecasts, 40 expected points on 5 channels" in line
     assert "left out 1 messages Foxglove is not given (status)" in line
     got, metadata = _read(out)
     assert {t: len(m) for t, m in got.items()} == {f"/{KEY}/sensors": 1000, f"/{KEY}/health": 2, f"/{KEY}/kl": 2,
-                                                   f"/{KEY}/forecast": 2}
+                                                   f"/{KEY}/forecast": 2, f"/{KEY}/expected": 40}
     assert metadata["hydrowatch"]["fleet"] == "f1" and metadata["rig"] == {"name": "test bench"}
 
     samples = got[f"/{KEY}/sensors"]
@@ -150,6 +177,19 @@ def test_export_foxglove_writes_json_that_reads_back_with_the_same_values(
     coil = forecast["parts"]["valve_coil"]
     assert "alert_in_s" not in coil and "low_s" not in coil and coil["reason"].startswith("too flat")
 
+    points = got[f"/{KEY}/expected"]  # one message per 0.1 s point, at its middle, every sensor of the window
+    assert [log for log, _, _ in points] == [50_000_000 + 100_000_000 * i for i in range(40)]
+    log_ns, publish_ns, point = points[27]  # window 2-4 s, point 7
+    assert (log_ns, publish_ns) == (2_750_000_000, RECEIVED_NS + 3 * 10**9)
+    assert point["t"] == pytest.approx(2.75) and (point["window_start"], point["window_end"]) == (2.0, 4.0)
+    assert point["step"] == pytest.approx(0.1) and point["model_version"] == "sha256:abc"
+    assert point["sensors"] == {
+        "flow": {"measured": pytest.approx(5.5), "expected": pytest.approx(3.75), "source": "valve relation",
+                 "unit": "L/min"},
+        "torque": {"measured": 17.0, "expected": 16.0, "source": "load relation", "unit": "N·m"}}
+    assert points[4][2]["sensors"]["torque"] == {"source": "load relation", "unit": "N·m"}  # NaN left out
+    assert points[4][2]["sensors"]["flow"]["measured"] == pytest.approx(2.0)
+
 
 def test_schemas_name_units_and_list_the_states_for_path_completion(recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "fox.mcap"
@@ -170,6 +210,13 @@ def test_schemas_name_units_and_list_the_states_for_path_completion(recording: P
     part = parts["additionalProperties"]["properties"]
     assert part["alert_in_s"]["description"].endswith("[s]") and part["rate_per_h"]["description"].endswith("[1/h]")
     assert (part["model"]["type"], part["points"]["type"]) == ("string", "number")
+    expected = schemas["hydrowatch.expected_point"]
+    assert set(expected["properties"]["sensors"]["properties"]) == {"flow", "torque"}
+    assert {"t", "sensors", "window_start", "model_version"} <= set(expected["required"])
+    point = expected["properties"]["sensors"]["additionalProperties"]["properties"]
+    assert (point["measured"]["type"], point["expected"]["type"], point["source"]["type"]) == (
+        "number", "number", "string")
+    assert expected["properties"]["t"]["description"].endswith("[s]")
 
 
 def test_export_foxglove_refuses_what_is_not_a_hydrowatch_recording(
@@ -265,3 +312,75 @@ def test_recorder_option_leaves_out_a_chunk_whose_times_json_cannot_carry(tmp_pa
     (path,) = (tmp_path / "rec" / "f1" / "m1").glob("*.foxglove.mcap")
     got, _ = _read(path)
     assert len(got[f"/{KEY}/sensors"]) == 200 and files.unwritable == {f"{KEY}/sensors": 1}
+
+
+COMPONENTS = {"cooler": ("3", "20", "100"), "valve": ("73", "80", "90", "100")}
+
+
+def _cycle_verdicts(first: int, n: int) -> pa.RecordBatch:
+    """A scorer's verdicts on cycles ``first`` … ``first + n - 1`` of 60 s: cooler at 100 %, the valve unknown
+    from cycle 2 on (novelty 1.8, NaN on cycle 1: left out)."""
+    rows = []
+    for cycle in range(first, first + n):
+        for component, states in COMPONENTS.items():
+            unknown = component == "valve" and cycle >= 2
+            p = 0.9 - 0.1 * cycle if component == "valve" else 0.97
+            rest = (1.0 - p) / (len(states) - 1)
+            rows.append({"cycle": cycle, "window_start": 60.0 * cycle, "window_end": 60.0 * cycle + 60.0,
+                         "component": component, "state": "unknown" if unknown else "100", "probability": p,
+                         "probabilities": [{"state": s, "probability": p if s == "100" else rest} for s in states],
+                         "novelty": float("nan") if cycle == 1 else (1.8 if unknown else 0.4),
+                         "reason": "no trained state explains the cycle" if unknown else None,
+                         "truth": "100" if component == "cooler" else None, "model_version": "uci/v1"})
+    return pa.RecordBatch.from_pylist(rows, schema=wire_schema(CYCLE_VERDICT))
+
+
+def test_cycle_verdicts_are_one_message_per_cycle_with_each_components_verdict(tmp_path: Path) -> None:
+    key = "hydro/uci/rig1"
+    cycles = pa.RecordBatch.from_pylist(
+        [{"cycle": c, "start_s": 60.0 * c, "rig": "uci", "grid_hz": 1.0, "channels": ["PS1"],
+          "values": [float(c)] * 60, "labels": None} for c in range(4)], schema=wire_schema(RIG_CYCLES))
+    source = tmp_path / "rig.mcap"
+    with McapWriter(source, metadata={"fleet": "uci", "machine": "rig1"}) as writer:
+        writer.write(f"{key}/cycles", cycles, 0)
+        writer.write(f"{key}/cycle_health", _cycle_verdicts(0, 2), RECEIVED_NS)
+        writer.write(f"{key}/cycle_health", _cycle_verdicts(2, 2), RECEIVED_NS + 1)
+    out = tmp_path / "rig.foxglove.mcap"
+    summary = export_foxglove(source, out).describe()
+    assert "4 cycle verdicts on 1 channels" in summary and "left out 1 messages Foxglove is not given (cycles)" in (
+        summary)
+    got, _ = _read(out)
+    assert list(got) == [f"/{key}/cycle_health"]
+    verdicts = got[f"/{key}/cycle_health"]
+    assert [log for log, _, _ in verdicts] == [60_000_000_000 * (c + 1) for c in range(4)]  # window_end
+    log_ns, publish_ns, third = verdicts[2]
+    assert (third["cycle"], third["window_start"], third["window_end"]) == (2, 120.0, 180.0)
+    assert publish_ns == RECEIVED_NS + 1 and third["model_version"] == "uci/v1"
+    valve = third["components"]["valve"]
+    assert valve == {"state": "unknown", "probability": pytest.approx(0.7), "novelty": 1.8,
+                     "reason": "no trained state explains the cycle",
+                     "probabilities": {"73": pytest.approx(0.1), "80": pytest.approx(0.1), "90": pytest.approx(0.1),
+                                       "100": pytest.approx(0.7)}}  # null truth left out
+    assert third["components"]["cooler"]["truth"] == "100" and third["components"]["cooler"]["state"] == "100"
+    assert "novelty" not in verdicts[1][2]["components"]["valve"]  # NaN: JSON has none
+    with open(out, "rb") as f:
+        summary_record = make_reader(f).get_summary()
+    assert summary_record is not None
+    (schema,) = [json.loads(s.data) for s in summary_record.schemas.values()]
+    components = schema["properties"]["components"]
+    assert schema["title"] == "hydrowatch.cycle_verdicts" and set(components["properties"]) == set(COMPONENTS)
+    assert set(components["properties"]["valve"]["properties"]["probabilities"]["properties"]) == set(
+        COMPONENTS["valve"])
+    assert components["additionalProperties"]["properties"]["probability"]["type"] == "number"
+
+
+def test_expected_points_refuse_lists_of_different_lengths() -> None:
+    from hydrowatch.io.foxglove import expected_points
+
+    batch = _expected(0.0)
+    rows = batch.to_pylist()
+    rows[1]["expected"] = rows[1]["expected"][:-1]
+    bad = pa.RecordBatch.from_pylist(rows, schema=batch.schema)
+    with pytest.raises(ValueError, match="expected must have as many points as measured. Got 19 and 20 for sensor "
+                                         "'torque'"):
+        list(expected_points(bad, "m1.mcap: message 3"))

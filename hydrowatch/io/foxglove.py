@@ -20,10 +20,22 @@ declaration in ``schemas/`` (descriptions carry the units):
   with an index, which ``alert_in_s`` counts from): ``window_start`` [s], ``history_windows``,
   ``model_version`` and ``parts`` ({fault: {alert_in_s [s], low_s, high_s, rate_per_h [1/h], level, model,
   points, reset_at [s], reason}}; null fields left out), so Foxglove plots ``….forecast.parts.load.alert_in_s``.
+- ``expected`` → one message **per point** (a 0.1 s block mean), log time = the point's middle ``t`` =
+  ``window_start + (i + ½)·step``: ``t``, ``window_start``, ``window_end``, ``step`` [s], ``model_version`` and
+  ``sensors`` ({sensor: {measured, expected, source, unit}}; a non-finite value left out), so Foxglove plots
+  ``….expected.sensors.flow.measured`` against ``….expected.sensors.flow.expected`` (and the raw
+  ``….sensors.flow`` beside them). Windows that overlap (an entropy bundle with hop < window) give two points
+  at some times.
+- ``cycle_health`` → one message **per cycle**, log time = ``window_end`` (when the cycle's verdicts are
+  known, as ``health``): ``cycle``, ``window_start``/``window_end`` [s], ``model_version`` and ``components``
+  ({component: {state, probability, probabilities ({state: p}), novelty, reason, truth}}; null and non-finite
+  left out), so Foxglove plots ``….cycle_health.components.valve.probability`` and its State Transitions panel
+  ``….cycle_health.components.valve.state``.
 
 Every channel thus shares the recording's time base (sample time, s → ns). The time the message
 was logged in the source (a recorder's receive time) is kept as publish time. ``status``
-heartbeats are left out: their time is Unix time, which would stretch the timeline by decades.
+heartbeats are left out: their time is Unix time, which would stretch the timeline by decades; so are a rig's
+``cycles`` (whole cycles of the rig's own channels; their verdicts, ``cycle_health``, are exported).
 """
 
 from __future__ import annotations
@@ -31,7 +43,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,85 +52,22 @@ import pyarrow as pa
 
 from hydrowatch.errors import DataError
 from hydrowatch.io.codec import decode_batch
+from hydrowatch.io.foxglove_schema import (
+    COMPONENT_FIELDS,
+    EXPECTED_SENSOR_FIELDS,
+    FORECAST_PART_FIELDS,
+    KINDS,
+    json_schema,
+)
 from hydrowatch.io.mcap_io import McapWriter, Recovery, expected_schema, iter_records
-from hydrowatch.schemas import schema_by_name
 
 JSON_ENCODING = "json"
 JSON_SCHEMA_ENCODING = "jsonschema"
-KINDS: dict[str, str] = {"sensors": "sensor_chunk", "health": "health_verdict", "kl": "kl_window",
-                         "forecast": "forecast"}
-"""Topic kinds written for Foxglove → the hydrowatch schema of their messages."""
-FORECAST_PART_FIELDS = ("alert_in_s", "low_s", "high_s", "rate_per_h", "level", "model", "points", "reset_at", "reason")
-"""Fields of a ``forecast`` row kept under its part's ``fault`` (the others describe the forecast as a whole)."""
-_JSON_TYPES = {"double": "number", "float": "number", "int64": "number", "int32": "number", "bool": "boolean",
-               "string": "string"}
 
 
 def foxglove_topic(key: str) -> str:
     """Foxglove topic of a key expression: ``hydro/f1/m1/sensors`` → ``/hydro/f1/m1/sensors``."""
     return key if key.startswith("/") else f"/{key}"
-
-
-def _property(arrow_field: pa.Field) -> dict[str, Any]:
-    """JSON Schema of one scalar declared field; the description ends with its unit."""
-    meta = {k.decode(): v.decode() for k, v in (arrow_field.metadata or {}).items()}
-    unit = meta.get("unit", "")
-    description = meta.get("description", "") + (f" [{unit}]" if unit and unit != "1" else "")
-    return {"type": _JSON_TYPES.get(str(arrow_field.type), "string"), "description": description}
-
-
-def json_schema(kind: str, example: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """JSON Schema (draft 2020-12) of the Foxglove messages of topic ``kind``.
-
-    Parameters
-    ----------
-    kind : {"sensors", "health", "kl", "forecast"}
-    example : mapping, optional
-        A first message: its ``probabilities`` states (health), ``relative_entropy`` sensors and
-        states (kl) or ``parts`` faults (forecast) are listed as properties, so that Foxglove offers
-        them in its path completion; others are still allowed.
-    """
-    declared = schema_by_name(KINDS[kind])
-    replaced = {"sensors": set(), "health": {"probabilities", "degradation"},
-                "kl": {"sensor", "state", "relative_entropy"}, "forecast": {"fault", *FORECAST_PART_FIELDS}}[kind]
-    properties = {f.name: _property(f) for f in declared if f.name not in replaced}
-    required = [f.name for f in declared if not f.nullable and f.name not in replaced]
-    title, description = f"hydrowatch.{KINDS[kind]}", declared.metadata[b"hydrowatch.description"].decode()
-    number, example = {"type": "number"}, example or {}
-    if kind == "sensors":
-        title, description = "hydrowatch.sensor_sample", "One sample of one machine at 200 Hz; log time = t."
-        required = ["t"]  # a NaN reading is left out of its sample
-    elif kind == "health":
-        properties["probabilities"] = {
-            "type": "object", "description": "Probability of every trained state, 0 to 1.",
-            "properties": {s: number for s in example.get("probabilities", {})}, "additionalProperties": number}
-        required.append("probabilities")
-        part: dict[str, Any] = {"type": "object", "properties": {k: number for k in ("index", "low", "high")}}
-        properties["degradation"] = {
-            "type": "object", "description": "Degradation index of each part (0 healthy, 1 at the alert level) with "
-                                             "its 95 % interval [1]; absent when the window has none.",
-            "additionalProperties": part}
-    elif kind == "forecast":
-        part = {"type": "object", "properties": {f.name: _property(f) for f in declared
-                                                 if f.name in FORECAST_PART_FIELDS}}
-        properties["parts"] = {
-            "type": "object", "description": "Each part's forecast of the alert (index 1.0); fields as the forecast "
-                                             "schema's rows, a null one left out.",
-            "properties": {fault: part for fault in example.get("parts", {})}, "additionalProperties": part}
-        required.append("parts")
-    else:
-        per_state = {"type": "object", "additionalProperties": number}
-        rows = example.get("relative_entropy", {})
-        properties["relative_entropy"] = {
-            "type": "object",
-            "description": "Relative entropy of the window's prediction errors from each state's base distribution, "
-                           "per sensor and state [nats]; parity bundles: the score of each component relation "
-                           "(load, motor, valve) under each state [1, >= 1].",
-            "properties": {s: {**per_state, "properties": {k: number for k in states}} for s, states in rows.items()},
-            "additionalProperties": per_state}
-        required.append("relative_entropy")
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, "description": description,
-            "type": "object", "properties": properties, "required": required}
 
 
 def _finite(value: Any) -> bool:
@@ -177,7 +126,42 @@ def forecasts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str
                                                   "model_version": version, "parts": parts}
 
 
-_CONVERT = {"sensors": sensor_samples, "health": verdicts, "kl": kl_windows, "forecast": forecasts}
+def expected_points(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(log_time_ns, point)`` per point of an expected_window message: point i of every sensor of a window at
+    ``t = window_start + (i + ½)·step`` [s], with {sensor: {measured, expected, source, unit}} (a non-finite value
+    left out), in time order."""
+    points: dict[int, dict[str, Any]] = {}
+    for row in batch.to_pylist():
+        head = {k: row[k] for k in ("window_start", "window_end", "step", "model_version")}
+        if len(row["measured"]) != len(row["expected"]):
+            raise DataError(f"expected must have as many points as measured. Got {len(row['expected'])} and "
+                            f"{len(row['measured'])} for sensor {row['sensor']!r}.", where)
+        for i, (measured, expected) in enumerate(zip(row["measured"], row["expected"])):
+            t = row["window_start"] + (i + 0.5) * row["step"]
+            point = points.setdefault(_ns(t, where, "window_start + (i + 0.5)·step"), {"t": t, **head, "sensors": {}})
+            values = {"measured": measured, "expected": expected, "source": row["source"], "unit": row["unit"]}
+            point["sensors"][row["sensor"]] = {k: v for k, v in values.items() if _finite(v)}
+    yield from sorted(points.items(), key=lambda item: item[0])
+
+
+def cycle_verdicts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(log_time_ns, cycle)`` per cycle of a cycle_verdict message: the rows (one per component) gathered under
+    ``components`` as {component: {state, probability, probabilities ({state: p}), novelty, reason, truth}} (null
+    and non-finite left out), log time = ``window_end``."""
+    found: dict[tuple[int, float, float, str], dict[str, dict[str, Any]]] = {}
+    for row in batch.to_pylist():
+        components = found.setdefault((row["cycle"], row["window_start"], row["window_end"], row["model_version"]), {})
+        verdict = {k: row[k] for k in COMPONENT_FIELDS if k != "probabilities" and _finite(row[k])}
+        verdict["probabilities"] = {p["state"]: p["probability"] for p in row["probabilities"] or []
+                                    if _finite(p["probability"])}
+        components[row["component"]] = verdict
+    for (cycle, start, end, version), components in found.items():
+        yield _ns(end, where, "window_end"), {"cycle": cycle, "window_start": start, "window_end": end,
+                                              "model_version": version, "components": components}
+
+
+_CONVERT = {"sensors": sensor_samples, "health": verdicts, "kl": kl_windows, "forecast": forecasts,
+            "expected": expected_points, "cycle_health": cycle_verdicts}
 
 
 class FoxgloveWriter(McapWriter):
@@ -189,8 +173,7 @@ class FoxgloveWriter(McapWriter):
     written : dict
         Foxglove topic → JSON messages written.
     skipped : dict
-        Key → messages left out (kinds without a conversion: ``status`` heartbeats, ``expected``, ``cycles``,
-        ``cycle_health``).
+        Key → messages left out (kinds without a conversion: ``status`` heartbeats and a rig's ``cycles``).
     """
 
     def __init__(self, path: str | Path, **options: Any) -> None:
@@ -205,7 +188,8 @@ class FoxgloveWriter(McapWriter):
         Parameters
         ----------
         key : str
-            Its key expression; the last part picks the conversion (sensors, health, kl, forecast).
+            Its key expression; the last part picks the conversion (sensors, health, kl, forecast, expected,
+            cycle_health).
         batch : pyarrow.RecordBatch
             The decoded message.
         publish_time_ns : int, optional
@@ -219,7 +203,7 @@ class FoxgloveWriter(McapWriter):
         Raises
         ------
         DataError
-            When a sample time or window end is negative or not finite (it cannot be a log time).
+            When a sample, point or window time is negative or not finite (it cannot be a log time).
         """
         kind = key.rsplit("/", 1)[-1]
         if kind not in _CONVERT:
@@ -241,6 +225,11 @@ class FoxgloveWriter(McapWriter):
         return count
 
 
+_COUNTED = (("sensors", "samples"), ("health", "verdicts"), ("kl", "relative-entropy windows"),
+            ("forecast", "forecasts"), ("expected", "expected points"), ("cycle_health", "cycle verdicts"))
+"""How :meth:`FoxgloveExport.describe` names the JSON messages of each kind (those written)."""
+
+
 @dataclass
 class FoxgloveExport:
     """What :func:`export_foxglove` wrote: JSON messages per Foxglove topic, Arrow messages read."""
@@ -258,9 +247,8 @@ class FoxgloveExport:
         kinds = sorted({key.rsplit("/", 1)[-1] for key in self.skipped})
         left_out = (f"; left out {sum(self.skipped.values())} messages Foxglove is not given ({', '.join(kinds)})"
                     if self.skipped else "")
-        return (f"wrote {self.out}: {per_kind['sensors']} samples, {per_kind['health']} verdicts, "
-                f"{per_kind['kl']} relative-entropy windows, {per_kind['forecast']} forecasts on {len(self.written)} "
-                "channels "
+        counts = ", ".join(f"{per_kind[kind]} {label}" for kind, label in _COUNTED if per_kind[kind]) or "nothing"
+        return (f"wrote {self.out}: {counts} on {len(self.written)} channels "
                 f"(JSON with JSON Schema, for Foxglove) from {self.messages_in} messages{left_out}"
                 + (f"; {self.recovered}" if self.recovered else ""))
 
@@ -325,7 +313,11 @@ __all__ = [
     "FoxgloveExport",
     "FoxgloveWriter",
     "export_foxglove",
+    "COMPONENT_FIELDS",
+    "EXPECTED_SENSOR_FIELDS",
     "FORECAST_PART_FIELDS",
+    "cycle_verdicts",
+    "expected_points",
     "forecasts",
     "foxglove_topic",
     "json_schema",
