@@ -1,6 +1,7 @@
 """The scorer service with a cycles bundle over loopback: a rig's cycles published as ``rig_cycles`` messages come
 back as per-component ``cycle_verdict`` messages, equal to ``hydrowatch score`` of the same cycles; a message of
-another rig is skipped, not fatal; an ``import --rig`` file replayed by the replay service is judged the same way."""
+another rig is skipped, not fatal; an ``import --rig`` file replayed by the replay service is judged the same way; the
+recorder asked for them records the cycles, their verdicts and a machine's expected sensors."""
 
 from __future__ import annotations
 
@@ -16,7 +17,14 @@ from test_rig_cycles_method import RIG, write_rig_folder
 
 from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, wait_alive
 from hydrowatch.io.codec import encode_batch
-from hydrowatch.io.rig_cycles import read_rig_data, rig_cycles_batch, start_times, write_rig_recording
+from hydrowatch.io.mcap_io import iter_messages
+from hydrowatch.io.rig_cycles import (
+    read_rig_data,
+    read_rig_recording,
+    rig_cycles_batch,
+    start_times,
+    write_rig_recording,
+)
 from hydrowatch.methods.cycles import CyclesMethod
 from hydrowatch.rig import load_rig
 from hydrowatch.training import load_bundle
@@ -114,3 +122,68 @@ def test_an_imported_rig_file_replayed_on_the_bus_is_judged(trained: Path) -> No
     assert sorted(r["cycle"] for r in got if r["component"] == "valve") == list(range(6))
     assert [r["state"] for r in sorted(got, key=lambda r: r["cycle"]) if r["component"] == "valve"] == [
         "100", "80", "unknown", "unknown", "100", "80"]
+
+
+def test_the_recorder_records_cycles_their_verdicts_and_expected_sensors_when_asked(trained: Path) -> None:
+    import pyarrow as pa
+
+    from hydrowatch.schemas import EXPECTED_WINDOW, wire_schema
+
+    rig = load_rig(trained / "rig.toml")
+    cycles = read_rig_data(trained / "new", rig)
+    starts = start_times(cycles, rig)
+    expected = pa.RecordBatch.from_pylist([{
+        "window_start": 5.0, "window_end": 10.0, "sensor": "flow", "unit": "L/min", "step": 0.1,
+        "measured": [1.0, 2.0], "expected": [1.5, 2.5], "source": "valve relation", "model_version": "sha256:abc"}],
+        schema=wire_schema(EXPECTED_WINDOW))
+    out, port = trained / "recorded", free_port()
+    scorer = _scorer(trained / "model", port)
+    recorder = subprocess.Popen([sys.executable, "-m", "services.recorder", "--out", str(out), "--fleet", "lab",
+                                 "--topics", "cycles,cycle_health,expected", "--rig", str(trained / "rig.toml"),
+                                 "--flush", "0.2", "--bus-port", str(port)], stderr=subprocess.PIPE, text=True)
+    try:
+        with open_session(BusSettings(port=port)) as session, Publisher(session) as pub, \
+                Subscriber(session, "hydro/lab/*/cycle_health") as health:
+            assert wait_alive(session, "scorer", "lab", 1, timeout=90), "scorer did not come up"
+            assert wait_alive(session, "record", "lab", 1, timeout=90), "recorder did not come up"
+            for rows in (range(0, 3), range(3, 6)):
+                pub.put_payload(key("lab", "rig1", "cycles"), encode_batch(rig_cycles_batch(cycles, rows, rig.name,
+                                                                                            starts)))
+            pub.put_payload(key("lab", "m1", "expected"), encode_batch(expected))
+            got = _collect(health, 12)
+            time.sleep(1.0)  # the recorder's verdicts arrive as the test's did
+    finally:
+        for proc in (recorder, scorer):
+            proc.send_signal(signal.SIGTERM)
+        _, log = recorder.communicate(timeout=60)
+        scorer.communicate(timeout=60)
+    assert recorder.returncode == 0, log
+    (rig1,) = (out / "lab" / "rig1").glob("*.mcap")
+    text, recorded = read_rig_recording(rig1)  # the recorder's file reads as import --rig's: description kept
+    assert text == (trained / "rig.toml").read_text(encoding="utf-8")
+    np.testing.assert_array_equal(recorded.values, cycles.values)
+    assert {k: list(v) for k, v in recorded.labels.items()} == {k: list(v) for k, v in cycles.labels.items()}
+    messages = list(iter_messages(rig1))
+    assert [k for k, _, _ in messages].count("hydro/lab/rig1/cycles") == 2
+    verdicts = [row for k, batch, _ in messages if k.endswith("/cycle_health") for row in batch.to_pylist()]
+    received = [{k: v for k, v in row.items() if k != "machine"} for row in got]
+    assert len(verdicts) == 12 and sorted(verdicts, key=str) == sorted(received, key=str)
+    ((topic, batch, _),) = list(iter_messages(next((out / "lab" / "m1").glob("*.mcap"))))
+    assert topic == "hydro/lab/m1/expected" and batch.to_pylist() == expected.to_pylist()
+
+
+def test_the_recorder_records_sensors_unless_given_topics_or_keys() -> None:
+    import argparse
+
+    from services.recorder import add_arguments, recorder_keys
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert recorder_keys(parser.parse_args([])) == ["hydro/*/*/sensors"]
+    assert recorder_keys(parser.parse_args(["--fleet", "lab", "--topics", "cycles,cycle_health"])) == [
+        "hydro/lab/*/cycles", "hydro/lab/*/cycle_health"]
+    assert recorder_keys(parser.parse_args(["--keys", "hydro/lab/m1/expected"])) == ["hydro/lab/m1/expected"]
+    with pytest.raises(ValueError, match="with --keys give whole key expressions"):
+        recorder_keys(parser.parse_args(["--keys", "hydro/lab/m1/expected", "--topics", "health"]))
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--topics", "cycle"])

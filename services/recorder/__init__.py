@@ -4,7 +4,11 @@ Every received payload is stored unchanged (Arrow IPC, one MCAP channel per key)
 decoded against its topic's schema; undecodable messages are counted and skipped. Files rotate
 by size or time; chunks close every ``--chunk-size`` bytes or ``--flush`` seconds, so a
 ``kill -9`` loses at most that; SIGTERM/SIGINT drains the queue, finishes every file and exits.
-``--shard i/n`` records only that shard of the fleet. A gap in a machine's sensor chunks is asked
+``--shard i/n`` records only that shard of the fleet. By default the recorder records the fleet's
+``sensors``; ``--topics`` names others of the contract (``expected``, ``health``, a rig's ``cycles`` and
+``cycle_health``, …) and ``--keys`` any key expressions. ``--rig`` keeps a rig description in every file's
+metadata, so that a recording of a rig's ``cycles`` is read as ``import --rig`` writes it (``score --data``).
+A gap in a machine's sensor chunks is asked
 for from the publisher's history and the recovered chunks are written too
 (:mod:`hydrowatch.bus.recovery`); what no publisher could resend is logged and counted in the
 heartbeat's ``messages_dropped`` (chunks), with status ``degraded``.
@@ -19,6 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hydrowatch.bus import Shard, StatusReporter, Subscriber, add_bus_arguments, key_expr, open_session, parse_shard
+from hydrowatch.bus.keys import TOPICS
 from hydrowatch.bus.recovery import GapRecovery
 from hydrowatch.bus.service import service_main
 from hydrowatch.bus.session import settings_from_args
@@ -44,6 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keys", action="append", default=[], metavar="KEYEXPR",
                         help=f"key expression to record, repeatable (default {key_expr()})")
     parser.add_argument("--fleet", default="*", help="fleet to record when --keys is not given (default: all)")
+    parser.add_argument("--topics", type=_topics, default=None, metavar="TOPIC[,TOPIC…]",
+                        help=f"topics of --fleet to record when --keys is not given, of {', '.join(TOPICS)} "
+                             "(default sensors)")
+    parser.add_argument("--rig", metavar="NAME|FILE", default=None,
+                        help="rig description kept in every file's metadata (as import --rig does), so that recorded "
+                             "cycles read back with their description")
     parser.add_argument("--shard", type=parse_shard, default=Shard(), help="record only shard i/n of the machines")
     parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     parser.add_argument("--chunk-size", type=int, default=64 * 1024, help="bytes per MCAP chunk (default 65536)")
@@ -64,16 +75,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
+def _topics(text: str) -> list[str]:
+    """``--topics``: a comma-separated list of contract topics."""
+    topics = [t.strip() for t in text.split(",") if t.strip()]
+    unknown = [t for t in topics if t not in TOPICS]
+    if unknown or not topics:
+        raise argparse.ArgumentTypeError(f"topics must be some of {', '.join(TOPICS)}, comma-separated. Got {text!r}.")
+    return topics
+
+
+def recorder_keys(args: argparse.Namespace) -> list[str]:
+    """The key expressions the recorder subscribes to: ``--keys``, or ``--fleet``'s machines × ``--topics`` (default
+    ``sensors``)."""
+    if args.keys and args.topics:
+        raise ParameterError("--topics names topics of --fleet; with --keys give whole key expressions instead "
+                             "(e.g. hydro/lab/*/cycle_health).")
+    return args.keys or [key_expr(args.fleet, "*", topic) for topic in (args.topics or ["sensors"])]
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Record until ``stop`` (or ``--seconds``), then drain and finish every file; returns 0."""
     for name in ("chunk_size", "flush", "rotate_mb", "rotate_s", "heartbeat"):
         if not getattr(args, name) > 0:
             raise ParameterError(f"--{name.replace('_', '-')} must be > 0. Got {getattr(args, name)}.")
-    keys = args.keys or [key_expr(args.fleet)]
+    keys = recorder_keys(args)
+    metadata = {"recorder_keys": keys, "shard": str(args.shard)}
+    if args.rig is not None:
+        from hydrowatch.io.rig_cycles import RIG_TEXT_KEY
+        from hydrowatch.rig.description import rig_text
+
+        rig, metadata[RIG_TEXT_KEY] = rig_text(args.rig)
+        metadata["rig"] = rig.name
     files = RecordingFiles(
         args.out, chunk_size=args.chunk_size, compression=args.compression, flush_s=args.flush,
         rotate_bytes=int(args.rotate_mb * 1024 * 1024), rotate_s=args.rotate_s,
-        extra_metadata={"recorder_keys": keys, "shard": str(args.shard)}, foxglove=args.foxglove,
+        extra_metadata=metadata, foxglove=args.foxglove,
     )
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     fleet = args.fleet if args.fleet != "*" else "all"
