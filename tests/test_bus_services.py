@@ -301,8 +301,12 @@ def test_plant_degrade_makes_a_machine_wear_with_its_label_following() -> None:
 
 
 def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() -> None:
+    # and a rig's cycles machine from …/cycle_health: its verdict per cycle in the table, each component below
+    import pyarrow as pa
+
     from hydrowatch.bus import Publisher, key
     from hydrowatch.condition.forecast import forecast_alert
+    from hydrowatch.schemas import CYCLE_VERDICT, wire_schema
     from hydrowatch.training.chunks import WindowVerdict
     from hydrowatch.training.forecasts import MachineForecast
     from hydrowatch.training.messages import forecast_batch, verdict_batch
@@ -313,6 +317,13 @@ def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() ->
     health = verdict_batch(WindowVerdict("f1/m7", 1795.0, 1800.0, Verdict("load_warning", 0.9), None, index), "v")
     forecast = forecast_batch(MachineForecast("f1/m7", 1795.0, {"load": forecast_alert(t, 0.6 * t / t[-1]),
                                                                "valve_coil": forecast_alert(t, 0.0 * t)}, t.size), "v")
+    cycles = pa.RecordBatch.from_pylist([
+        {"cycle": c, "window_start": 60.0 * c, "window_end": 60.0 * c + 60.0, "component": component,
+         "state": state, "probability": 0.9, "probabilities": [{"state": state, "probability": 0.9},
+                                                               {"state": "other", "probability": 0.1}],
+         "novelty": 0.4, "reason": None, "truth": None, "healthy": "100", "model_version": "v"}
+        for c in range(3) for component, state in (("cooler", "100"), ("valve", "100" if c == 0 else "73"))],
+        schema=wire_schema(CYCLE_VERDICT))
     port = free_port()
     watch = subprocess.Popen([sys.executable, "-m", "hydrowatch", "watch", "--fleet", FLEET, "--seconds", "8",
                               "--bus-port", str(port)], stdout=subprocess.PIPE, text=True)
@@ -321,6 +332,7 @@ def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() ->
         while watch.poll() is None:  # as a scorer does, again and again (the first may come before all links are up)
             publisher.put(key(FLEET, "m7", "health"), health)
             publisher.put(key(FLEET, "m7", "forecast"), forecast)
+            publisher.put(key(FLEET, "rig1", "cycle_health"), cycles)
             time.sleep(0.5)
         out, _ = watch.communicate(timeout=60)
     assert watch.returncode == 0
@@ -329,3 +341,8 @@ def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() ->
     worn = lines[lines.index("wear (most urgent first)") + 1]
     assert worn.startswith("f1/m7") and "load 0.60 [0.55–0.65]" in worn and "alert in 20 min" in worn, out
     assert "valve_coil" not in worn  # index 0 and no forecast: not worn
+    assert any(line.startswith("f1/rig1") and "valve=73" in line and "valve 73 (p = 0.90; healthy 100) since cycle 1"
+               in line for line in lines), out
+    components = lines[lines.index("components (cycles machines)") + 1]
+    assert components.startswith("f1/rig1") and "cooler 100 · valve 73 (p = 0.90; healthy 100) since cycle" in (
+        components), out

@@ -64,11 +64,11 @@ def test_schemas_carry_name_version_units_and_descriptions():
 
 def test_schema_files_are_plain_json_with_every_field_documented():
     files = sorted(p.name for p in schemas_dir().glob("*.json"))
-    assert files == ["cycle_verdict.v1.json", "expected_window.v1.json", "forecast.v1.json", "health_verdict.v1.json",
-                     "health_verdict.v2.json", "kl_window.v1.json", "rig_cycles.v1.json", "sensor_chunk.v1.json",
-                     "sensor_chunk.v2.json", "status.v1.json"]
+    assert files == ["cycle_verdict.v1.json", "cycle_verdict.v2.json", "expected_window.v1.json", "forecast.v1.json",
+                     "health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json", "rig_cycles.v1.json",
+                     "sensor_chunk.v1.json", "sensor_chunk.v2.json", "status.v1.json"]
     assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status", "forecast",
-                                         "expected_window", "rig_cycles", "cycle_verdict")] == [2, 1, 2, 1, 1, 1, 1, 1]
+                                         "expected_window", "rig_cycles", "cycle_verdict")] == [2, 1, 2, 1, 1, 1, 1, 2]
     assert SCHEMA_VERSION == current_version("sensor_chunk")  # what recording metadata says it holds
     readme = (schemas_dir() / "README.md").read_text()
     for name in files:

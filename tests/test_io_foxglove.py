@@ -331,7 +331,8 @@ def _cycle_verdicts(first: int, n: int) -> pa.RecordBatch:
                          "probabilities": [{"state": s, "probability": p if s == "100" else rest} for s in states],
                          "novelty": float("nan") if cycle == 1 else (1.8 if unknown else 0.4),
                          "reason": "no trained state explains the cycle" if unknown else None,
-                         "truth": "100" if component == "cooler" else None, "model_version": "uci/v1"})
+                         "truth": "100" if component == "cooler" else None, "healthy": "100",
+                         "model_version": "uci/v1"})
     return pa.RecordBatch.from_pylist(rows, schema=wire_schema(CYCLE_VERDICT))
 
 
@@ -357,7 +358,7 @@ def test_cycle_verdicts_are_one_message_per_cycle_with_each_components_verdict(t
     assert (third["cycle"], third["window_start"], third["window_end"]) == (2, 120.0, 180.0)
     assert publish_ns == RECEIVED_NS + 1 and third["model_version"] == "uci/v1"
     valve = third["components"]["valve"]
-    assert valve == {"state": "unknown", "probability": pytest.approx(0.7), "novelty": 1.8,
+    assert valve == {"state": "unknown", "probability": pytest.approx(0.7), "novelty": 1.8, "healthy": "100",
                      "reason": "no trained state explains the cycle",
                      "probabilities": {"73": pytest.approx(0.1), "80": pytest.approx(0.1), "90": pytest.approx(0.1),
                                        "100": pytest.approx(0.7)}}  # null truth left out

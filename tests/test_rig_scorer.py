@@ -87,6 +87,7 @@ def test_the_scorer_judges_published_rig_cycles_per_component(trained: Path) -> 
     assert proc.returncode == 0
     assert log.count("rig cycles refused") == 1 and "cycles must be of rig 'tiny-cycles'" in log
     assert len(got) == 24 and {r["machine"] for r in got} == {"rig1", "rig2"}
+    assert {(r["component"], r["healthy"]) for r in got} == {("valve", "100"), ("pump", "0")}  # v2: the healthy state
     for row in got:
         expected = offline["cycles"][row["cycle"]]["components"][row["component"]]
         assert row["state"] == expected["state"] and row["truth"] == expected["truth"]

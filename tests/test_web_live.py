@@ -306,3 +306,93 @@ def test_the_web_service_takes_forecast_messages_into_the_rows() -> None:
     row = live.row("f1/m0")["degradation"]
     assert list(row) == ["load", "valve_coil"] and row["valve_coil"]["reason"].startswith("too flat")
     assert row["load"]["alert_in_s"] == pytest.approx(1200.0, rel=0.05) and row["load"]["value"] == 0.6
+
+
+VALVE = ("100", "90", "80", "73")
+
+
+def cycle_rows_of(first: int, valve: list[str], *, healthy: str | None = "100") -> list[dict[str, Any]]:
+    """``cycle_verdict`` rows (as :func:`~hydrowatch.report.cycle_table.cycle_rows` gives them) of cycles ``first``,
+    ``first + 1``, … of 60 s: the cooler at 100 %, the valve in the given states (p 0.9, ``unknown`` with novelty
+    1.7)."""
+    rows = []
+    for i, state in enumerate(valve):
+        cycle = first + i
+        for component, s, states in (("cooler", "100", ("3", "20", "100")), ("valve", state, VALVE)):
+            p = 0.96 if component == "cooler" else 0.9
+            probabilities = {k: (p if k == s else (1 - p) / (len(states) - 1)) for k in states}
+            if s == "unknown":
+                probabilities = {k: 0.4 if k == "90" else 0.2 for k in states}
+            rows.append({"cycle": cycle, "window_start": 60.0 * cycle, "window_end": 60.0 * cycle + 60.0,
+                         "component": component, "state": s, "probability": max(probabilities.values()),
+                         "probabilities": probabilities, "novelty": 1.7 if s == "unknown" else 0.3,
+                         "reason": "no trained state of the component explains the cycle" if s == "unknown" else None,
+                         "truth": None, "healthy": healthy, "model_version": "sha256:rig"})
+    return rows
+
+
+def test_a_cycles_machine_is_ranked_by_its_components_and_shows_each_ones_verdict(live: FleetLive) -> None:
+    live.add_cycle_verdicts("lab", "rig1", cycle_rows_of(0, ["100", "100"]), received=100.0)
+    row = live.row("lab/rig1")
+    assert (row["state"], row["level"], row["p"], row["windows"], row["why"]) == ("healthy", "healthy", 0.9, 2, "")
+    assert [c["component"] for c in row["components"]] == ["cooler", "valve"]
+    assert live.row("f1/m0")["components"] is None  # a plant machine has none
+
+    live.add_cycle_verdicts("lab", "rig1", cycle_rows_of(2, ["73", "73", "73"]), received=130.0)
+    row = live.row("lab/rig1")
+    assert (row["state"], row["level"], row["since_s"], row["last_s"]) == ("valve=73", "warning", 120.0, 300.0)
+    assert row["p"] == pytest.approx(0.9) and row["since_wall"] == 130.0
+    assert row["why"] == "valve 73 (p = 0.90; healthy 100) since cycle 2"
+    cooler, valve = row["components"]
+    assert (valve["state"], valve["level"], valve["since_cycle"], valve["cycle"], valve["since_s"]) == (
+        "73", "warning", 2, 4, 120.0)
+    assert valve["p_healthy"] == pytest.approx(0.1 / 3) and (cooler["level"], cooler["since_cycle"]) == ("healthy", 0)
+    # ranked with the plant's machines: the alert, the unknown, then the warnings by since when (f1/m1 since 0 s)
+    assert [r["id"] for r in live.rows()] == ["f2/m2", "f1/m3", "f1/m1", "lab/rig1", "f1/m0"]
+
+    live.add_cycle_verdicts("lab", "rig1", cycle_rows_of(5, ["unknown"]), received=140.0)
+    row = live.row("lab/rig1")
+    assert (row["state"], row["level"], row["p"]) == ("unknown", "unknown", 0.0)
+    assert row["why"] == "valve unknown (novelty 1.70) since cycle 5"
+    assert [r["id"] for r in select(live.rows(), state="unknown")] == ["f1/m3", "lab/rig1"]  # unknown since 5 s first
+    machine = live.machine("lab/rig1")
+    timeline = machine["timeline"]  # history=4: the last 4 cycles, each component's probability of its healthy state
+    assert timeline["state"] == ["valve=73", "valve=73", "valve=73", "unknown"]
+    assert timeline["end_s"] == [180.0, 240.0, 300.0, 360.0]
+    assert timeline["probabilities"]["cooler"] == [0.96] * 4
+    assert timeline["probabilities"]["valve"] == pytest.approx([0.1 / 3] * 3 + [0.2], abs=1e-6)
+
+
+def test_a_v1_cycle_verdict_without_a_healthy_state_ranks_every_trained_state_as_a_warning() -> None:
+    live = FleetLive()
+    live.add_cycle_verdicts("lab", "rig1", cycle_rows_of(0, ["100"], healthy=None))
+    row = live.row("lab/rig1")
+    assert row["level"] == "warning" and row["state"] == "cooler=100 valve=100"
+    assert live.machine("lab/rig1")["timeline"]["probabilities"] == {}
+
+
+def test_the_web_service_and_the_page_stream_take_a_cycles_machine() -> None:
+    import pyarrow as pa
+
+    from hydrowatch.bus import Key, Message
+    from hydrowatch.schemas import CYCLE_VERDICT, wire_schema
+    from services.web import _take
+    from services.web.server import WebServer
+
+    rows = [{**r, "probabilities": [{"state": k, "probability": p} for k, p in r["probabilities"].items()]}
+            for r in cycle_rows_of(0, ["100", "80"])]
+    batch = pa.RecordBatch.from_pylist(rows, schema=wire_schema(CYCLE_VERDICT))
+    live = FleetLive()
+    _take(live, [Message(Key("lab", "rig1", "cycle_health"), batch, b"", 2_000_000_000, 1_500_000_000)])
+    row = live.row("lab/rig1")
+    assert (row["state"], row["windows"], row["since_wall"], row["published_ms"]) == ("valve=80", 2, 2.0, 1500.0)
+    condition = threading.Condition()
+    with WebServer(live, condition) as server:
+        status, body, _ = _get(server.url + "api/fleet")
+        (sent,) = json.loads(body)["rows"]
+        assert status == 200 and [(c["component"], c["state"], c["level"]) for c in sent["components"]] == [
+            ("cooler", "100", "healthy"), ("valve", "80", "warning")]
+        with urllib.request.urlopen(server.url + "events/machine?id=lab/rig1", timeout=10) as stream:
+            page = json.loads(stream.readline().decode().removeprefix("data: "))
+        assert page["row"]["components"][1]["text"] == "valve 80 (p = 0.90; healthy 100) since cycle 1"
+        assert page["timeline"]["probabilities"]["valve"] == pytest.approx([0.9, 0.1 / 3], abs=1e-6)

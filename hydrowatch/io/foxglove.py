@@ -28,7 +28,7 @@ declaration in ``schemas/`` (descriptions carry the units):
   at some times.
 - ``cycle_health`` → one message **per cycle**, log time = ``window_end`` (when the cycle's verdicts are
   known, as ``health``): ``cycle``, ``window_start``/``window_end`` [s], ``model_version`` and ``components``
-  ({component: {state, probability, probabilities ({state: p}), novelty, reason, truth}}; null and non-finite
+  ({component: {state, probability, probabilities ({state: p}), novelty, reason, truth, healthy}}; null and non-finite
   left out), so Foxglove plots ``….cycle_health.components.valve.probability`` and its State Transitions panel
   ``….cycle_health.components.valve.state``.
 
@@ -146,8 +146,8 @@ def expected_points(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, di
 
 def cycle_verdicts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str, Any]]]:
     """``(log_time_ns, cycle)`` per cycle of a cycle_verdict message: the rows (one per component) gathered under
-    ``components`` as {component: {state, probability, probabilities ({state: p}), novelty, reason, truth}} (null
-    and non-finite left out), log time = ``window_end``."""
+    ``components`` as {component: {state, probability, probabilities ({state: p}), novelty, reason, truth,
+    healthy}} (null and non-finite left out), log time = ``window_end``."""
     found: dict[tuple[int, float, float, str], dict[str, dict[str, Any]]] = {}
     for row in batch.to_pylist():
         components = found.setdefault((row["cycle"], row["window_start"], row["window_end"], row["model_version"]), {})

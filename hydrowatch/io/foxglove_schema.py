@@ -18,7 +18,7 @@ FORECAST_PART_FIELDS = ("alert_in_s", "low_s", "high_s", "rate_per_h", "level", 
 """Fields of a ``forecast`` row kept under its part's ``fault`` (the others describe the forecast as a whole)."""
 EXPECTED_SENSOR_FIELDS = ("measured", "expected", "source", "unit")
 """Fields of an ``expected_window`` row kept under its ``sensor``, one point's value for the lists."""
-COMPONENT_FIELDS = ("state", "probability", "probabilities", "novelty", "reason", "truth")
+COMPONENT_FIELDS = ("state", "probability", "probabilities", "novelty", "reason", "truth", "healthy")
 """Fields of a ``cycle_verdict`` row kept under its ``component`` (the others describe the cycle)."""
 _JSON_TYPES = {"double": "number", "float": "number", "int64": "number", "int32": "number", "bool": "boolean",
                "string": "string"}

@@ -2,7 +2,8 @@
 
 The scorer service hands each ``rig_cycles`` message of a machine to :meth:`CycleJudge.judge`; the verdicts are
 the bundle's own (:meth:`hydrowatch.methods.cycles.CyclesMethod.judge_cycles`, the same as ``hydrowatch score``
-of the same cycles), one row per cycle and component, with the cycle's label as ``truth`` when it carries one.
+of the same cycles), one row per cycle and component, with the cycle's label as ``truth`` when it carries one and the
+component's healthy state (``healthy``, v2) so that watch, the web page and reports rank the verdict.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ class CycleJudge:
                        "probability": float(v.probability or 0.0),
                        "probabilities": [{"state": s, "probability": float(p)} for s, p in v.probabilities.items()],
                        "novelty": float(v.novelty if v.novelty is not None else float("nan")), "reason": v.reason,
-                       "truth": truth[component][i] if component in truth else None, "model_version": self.version}
+                       "truth": truth[component][i] if component in truth else None,
+                       "healthy": self.method.component_states[component][0], "model_version": self.version}
                 for name, value in row.items():
                     rows[name].append(value)
         return pa.RecordBatch.from_pydict(rows, schema=wire_schema(CYCLE_VERDICT))

@@ -7,7 +7,8 @@ demo report use the same); this module adds what a page needs on top: a change c
 gets only what changed since its last update, each machine's timeline of verdicts and probabilities,
 the evidence (relative entropies or parity relation scores) of its last windows, and each part's wear: its
 index from the latest verdict with the trend and time to alert of the machine's latest forecast, most urgent
-first (:func:`~hydrowatch.report.fleet_table.wear_parts`).
+first (:func:`~hydrowatch.report.fleet_table.wear_parts`), and a rig's cycles machine's components (its latest verdict
+per component; :mod:`hydrowatch.report.cycle_table`: the machine's verdict is its verdict on its latest cycle).
 
 A machine's id on the page is ``<fleet>/<machine>``.
 """
@@ -24,6 +25,7 @@ import numpy as np
 
 from hydrowatch.channels import PLANT
 from hydrowatch.errors import ParameterError
+from hydrowatch.report.cycle_table import CycleTable
 from hydrowatch.report.fleet_table import HEALTHY, LEVELS, FleetTable, MachineRow, urgency, wear_parts
 from hydrowatch.web.traces import ExpectedTrace
 
@@ -141,6 +143,7 @@ class FleetLive:
         self.expected_windows = expected_windows
         self.seq = 0
         self._table = FleetTable()
+        self._cycles = CycleTable()
         self._machines: dict[str, _Machine] = {}
         self._changed: dict[str, int] = {}
         self._rows: tuple[int, list[dict[str, Any]]] | None = None  # (seq, rows) of the last :meth:`rows`
@@ -173,6 +176,15 @@ class FleetLive:
             m.degradation = dict(verdict["degradation"])
         self.seq += 1
         self._changed[ident] = self.seq
+
+    def add_cycle_verdicts(self, fleet: str, machine: str, rows: Sequence[Mapping[str, Any]], *,
+                           received: float | None = None, published_ms: float | None = None) -> None:
+        """Take one ``cycle_verdict`` message of a rig's cycles machine (its rows as
+        :func:`~hydrowatch.report.cycle_table.cycle_rows` gives them): its components are updated and the machine's
+        verdict on each cycle (:func:`~hydrowatch.report.cycle_table.machine_verdict`) is taken as
+        :meth:`add_verdict` takes a health verdict."""
+        for verdict in self._cycles.update(f"{fleet}/{machine}", rows):
+            self.add_verdict(fleet, machine, verdict, received=received, published_ms=published_ms)
 
     def add_evidence(self, fleet: str, machine: str, rows: Sequence[Mapping[str, Any]]) -> None:
         """Take one ``kl_window`` message (its rows, one per sensor or relation × state, as dicts)."""
@@ -255,10 +267,12 @@ class FleetLive:
     def _row(self, ident: str, r: MachineRow) -> dict[str, Any]:
         m = self._machines[ident]
         rank = urgency(r.state)
+        components = self._cycles.components(ident)
         return {"id": ident, "fleet": m.fleet, "machine": m.machine, "state": r.state, "level": LEVELS[rank],
                 "rank": rank, "p": r.probability, "since_s": r.since_s, "since_wall": r.since_wall,
                 "last_s": r.last_s, "windows": r.windows, "why": r.why(), "published_ms": m.published_ms,
-                "degradation": wear_parts(m.degradation, m.forecast)}
+                "degradation": wear_parts(m.degradation, m.forecast),
+                "components": None if components is None else [c.to_dict(name) for name, c in components.items()]}
 
     def rows(self) -> list[dict[str, Any]]:
         """Every machine's row, most urgent first (:meth:`FleetTable.by_urgency`); the same list until the next

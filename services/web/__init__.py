@@ -1,4 +1,5 @@
-"""Web service: the live fleet page, fed by ``hydro/<fleet>/*/health``, ``…/kl`` and ``…/forecast``.
+"""Web service: the live fleet page, fed by ``hydro/<fleet>/*/health``, ``…/kl``, ``…/forecast`` and a rig's
+``…/cycle_health``.
 
 Subscribes to the verdicts and the evidence (relative entropies or parity relation scores) of every
 machine of ``--fleet``, keeps them in a :class:`hydrowatch.web.live.FleetLive` and serves the fleet page
@@ -26,12 +27,15 @@ from hydrowatch.bus.session import settings_from_args
 from hydrowatch.errors import ParameterError
 from hydrowatch.io.sensor_chunk import arrays_from_sensor_chunk
 from hydrowatch.log import event, get_logger
+from hydrowatch.report.cycle_table import cycle_rows
 from hydrowatch.report.fleet_table import forecast_parts, verdict_rows
 from hydrowatch.web import DEFAULT_PORT
 from hydrowatch.web.live import FleetLive
 
 NAME = "web"
-HELP = "live fleet web page (health, evidence and forecast topics) on a local port, updated in place"
+HELP = "live fleet web page (health, evidence, forecast and cycle_health topics) on a local port, updated in place"
+TOPICS = ("health", "kl", "forecast", "cycle_health")
+"""What the service subscribes to for every machine of ``--fleet``."""
 log = get_logger("services.web")
 
 
@@ -47,8 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _take(live: FleetLive, messages: Sequence[Message]) -> None:
-    """Feed ``live`` with verdicts (``health``), evidence (``kl``), forecasts (``forecast``) and followed machines'
-    samples (``sensors``) and expected sensors (``expected``)."""
+    """Feed ``live`` with verdicts (``health``; a rig's ``cycle_health``), evidence (``kl``), forecasts (``forecast``)
+    and followed machines' samples (``sensors``) and expected sensors (``expected``)."""
     for message in messages:
         k = message.key
         if k.topic == "sensors":
@@ -58,6 +62,10 @@ def _take(live: FleetLive, messages: Sequence[Message]) -> None:
             for row in verdict_rows(message.batch):
                 live.add_verdict(k.fleet, k.machine, row, received=message.receive_time_ns / 1e9,
                                  published_ms=message.publish_time_ns / 1e6 or None)
+        elif k.topic == "cycle_health":
+            live.add_cycle_verdicts(k.fleet, k.machine, cycle_rows(message.batch),
+                                    received=message.receive_time_ns / 1e9,
+                                    published_ms=message.publish_time_ns / 1e6 or None)
         elif k.topic == "forecast":
             live.add_forecast(k.fleet, k.machine, forecast_parts(message.batch)[1])
         elif k.topic == "expected":
@@ -105,7 +113,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     live = FleetLive(history=args.history)
     condition = threading.Condition()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
-    topics = [key_expr(args.fleet, "*", topic) for topic in ("health", "kl", "forecast")]
+    topics = [key_expr(args.fleet, "*", topic) for topic in TOPICS]
     with open_session(settings_from_args(args)) as session, Subscriber(session, topics) as subscriber, \
             _SensorFeeds(session) as feeds, WebServer(live, condition, args.host, args.port) as server:
         reporter = StatusReporter(session, args.fleet if args.fleet != "*" else "all", NAME, lambda: {

@@ -33,3 +33,10 @@ function degradationHtml(d) {
     return `<span class="deg${soon ? " soon" : ""}"${title}>${esc(fault)} ${num(value)}${ci}${trend}${alert}</span>`;
   }).join("");
 }
+
+// A cycles machine's components (…/cycle_health): one chip per component, coloured by its level, in the rig's order.
+function componentsHtml(c) {
+  if (!c) return "";
+  return c.map((x) => `<span class="comp ${esc(x.level)}" title="${esc(x.text)}">${esc(x.component)} ` +
+    `${esc(x.state)}</span>`).join("");
+}

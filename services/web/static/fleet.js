@@ -15,6 +15,7 @@ let drawn = "";
 let source = null;
 let pending = [];
 let anyDegradation = false;
+let anyComponents = false;  // a rig's cycles machine shown: the components column appears
 // what tests and the benchmark read: first rows drawn (ms after navigation), every update's lag
 const hw = window.hw = {seq: -1, snapshots: 0, firstRowsMs: null, lags: [], applied: 0, shown: 0};
 
@@ -25,6 +26,7 @@ function cells(r) {
     `<td>${clock(r.since_wall)} <span class="note">(t = ${r.since_s.toFixed(1)} s)</span></td>` +
     `<td class="num">${r.last_s.toFixed(1)}</td><td class="num">${r.windows}</td>` +
     `<td class="degcol"${anyDegradation ? "" : " hidden"}>${degradationHtml(r.degradation)}</td>` +
+    `<td class="compcol"${anyComponents ? "" : " hidden"}>${componentsHtml(r.components)}</td>` +
     `<td class="why">${esc(r.why)}</td>`;
 }
 
@@ -48,7 +50,7 @@ function draw() {
   // (clamped: the view may lie past the end of a list that just got shorter)
   const first = Math.max(0, Math.min(Math.floor((window.scrollY - top) / h) - MARGIN, order.length - count));
   const last = Math.min(order.length, first + count);
-  const columns = anyDegradation ? 9 : 8;
+  const columns = 8 + anyDegradation + anyComponents;
   const spacer = (n) => `<tr class="spacer"><td colspan="${columns}" style="height:${n * h}px"></td></tr>`;
   let out = first ? spacer(first) : "";
   for (let i = first; i < last; i++) out += trHtml(order[i]);
@@ -98,6 +100,11 @@ function apply(m) {
   if (!anyDegradation && m.rows.some((r) => r.degradation)) {
     anyDegradation = true;
     document.querySelectorAll("th.degcol").forEach((th) => { th.hidden = false; });
+    html.clear();
+  }
+  if (!anyComponents && m.rows.some((r) => r.components)) {
+    anyComponents = true;
+    document.querySelectorAll("th.compcol").forEach((th) => { th.hidden = false; });
     html.clear();
   }
   for (const r of m.rows) {

@@ -16,12 +16,30 @@ function verdictSection(m) {
     <span><b>last window</b> ends t = ${r.last_s.toFixed(1)} s</span>
     <span><b>model</b> ${esc(m.model_version)}</span>
     ${r.degradation ? `<span><b>degradation</b> ${degradationHtml(r.degradation)}</span>` : ""}</div>
-    <p class="note">${esc(r.why)}</p>`;
+    <p class="note">${esc(r.why)}</p>${componentsTable(r.components)}`;
+}
+
+// A cycles machine: each component's latest verdict (…/cycle_health), the evidence behind the machine's verdict.
+function componentsTable(c) {
+  if (!c) return "";
+  const num = (x, d) => x == null ? "–" : Number(x).toFixed(d);
+  return `<table id="components"><thead><tr><th>component</th><th>state</th><th>healthy state</th><th>p</th>
+    <th>p (healthy)</th><th>novelty</th><th>since</th><th>label</th></tr></thead><tbody>` + c.map((x) =>
+    `<tr class="lvl-${esc(x.level)}" data-component="${esc(x.component)}"><td>${esc(x.component)}</td>` +
+    `<td><span class="badge">${esc(x.state)}</span></td><td>${esc(x.healthy ?? "–")}</td>` +
+    `<td class="num">${num(x.p, 2)}</td><td class="num">${num(x.p_healthy, 2)}</td>` +
+    `<td class="num">${num(x.novelty, 2)}</td><td>cycle ${x.since_cycle} (t = ${x.since_s.toFixed(0)} s)</td>` +
+    `<td>${esc(x.truth ?? "")}</td></tr>`).join("") + "</tbody></table>";
 }
 
 function evidenceSection(m) {
   const box = document.getElementById("evidence");
   const ev = m.evidence;
+  if (!ev.length && m.row.components) {
+    box.innerHTML = `<p class="note">A cycles machine: the evidence is each component's probability and novelty
+      (above; novelty above 1: no trained state explains the cycle, 'unknown').</p>`;
+    return;
+  }
   if (!ev.length) {
     box.innerHTML = `<p class="note">No evidence message (…/kl) for this machine yet: the scorer publishes one per
       judged window (none for invalid windows).</p>`;
@@ -112,6 +130,8 @@ function draw(m) {
   stateBand(document.getElementById("states"), t);
   const seen = [...new Set(t.level)];
   legend(document.getElementById("state-legend"), seen.map((l) => [l, LEVEL_COLOURS[l]]));
+  document.getElementById("p-title").textContent = m.row.components ? "Probability of each component's healthy state"
+    : "Probability of each trained state";
   const entries = lineChart(document.getElementById("probabilities"), t.end_s, t.probabilities);
   legend(document.getElementById("p-legend"), entries);
   evidenceSection(m);
