@@ -223,3 +223,39 @@ def test_a_degradation_index_shows_when_a_verdict_carries_one() -> None:
         browser.wait_for("window.hw.updates > 0", timeout=10)
         assert "".join(shown) in browser.evaluate("document.getElementById('verdict').textContent")
         assert browser.exceptions() == []
+
+
+def test_a_cycles_machine_shows_each_components_verdict() -> None:
+    """A rig's cycles machine (…/cycle_health, fed here directly): its row with a chip per component coloured by its
+    level, and on its page the components' table and each component's probability of its healthy state."""
+    import threading
+
+    from hydrowatch.web.live import FleetLive
+    from services.web.server import WebServer
+
+    live = FleetLive()
+    live.add_verdict("f1", "m0", {"window_start": 0.0, "window_end": 5.0, "state": "healthy", "probability": 0.9,
+                                  "probabilities": {"healthy": 0.9}, "reason": None})
+    rows = [{"cycle": c, "window_start": 60.0 * c, "window_end": 60.0 * c + 60.0, "component": name, "state": state,
+             "probability": 0.9, "probabilities": {healthy: 0.9 if state == healthy else 0.1, "x": 0.1},
+             "novelty": 0.3, "reason": None, "truth": None, "healthy": healthy, "model_version": "v"}
+            for c in range(2) for name, healthy, state in (("cooler", "100", "100"),
+                                                           ("valve", "100", "100" if c == 0 else "73"))]
+    live.add_cycle_verdicts("lab", "rig1", rows)
+    with WebServer(live, threading.Condition()) as server, Chromium(width=1200, height=400) as browser:
+        browser.navigate(server.url)
+        browser.wait_for("window.hw.shown === 2", timeout=10)
+        assert browser.evaluate("document.querySelector('th.compcol').hidden") is False
+        chips = "Array.from(document.querySelectorAll('#rows tr[data-id=\"lab/rig1\"] td.compcol .comp'))"
+        assert browser.evaluate(f"{chips}.map((e) => e.textContent + ' ' + e.className)") == [
+            "cooler 100 comp healthy", "valve 73 comp warning"]
+        assert browser.evaluate("document.querySelector('#rows tr').dataset.id") == "lab/rig1"  # warning first
+        browser.navigate(server.url + "machine?id=lab/rig1")
+        browser.wait_for("window.hw.updates > 0", timeout=10)
+        table = "Array.from(document.querySelectorAll('#components tbody tr'))"
+        assert browser.evaluate(f"{table}.map((r) => r.dataset.component + ' ' + r.className)") == [
+            "cooler lvl-healthy", "valve lvl-warning"]
+        assert browser.evaluate("document.getElementById('p-title').textContent") == (
+            "Probability of each component's healthy state")
+        assert "cycles machine" in browser.evaluate("document.getElementById('evidence').textContent")
+        assert browser.exceptions() == []

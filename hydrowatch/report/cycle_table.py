@@ -42,13 +42,17 @@ def component_level(state: str, healthy: str | None) -> str:
     return HEALTHY if healthy is not None and state == healthy else WARNING
 
 
+def cycle_row(row: Mapping[str, Any]) -> dict[str, Any]:
+    """One ``cycle_verdict`` row as Arrow's ``to_pylist`` gives it (v1 or v2), with ``probabilities`` as state → p and
+    ``healthy`` None when absent."""
+    found = row.get("probabilities") or []
+    probabilities = dict(found) if isinstance(found, Mapping) else {p["state"]: p["probability"] for p in found}
+    return {**row, "probabilities": probabilities, "healthy": row.get("healthy")}
+
+
 def cycle_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
-    """``cycle_verdict`` rows (v1 or v2) as dicts: ``probabilities`` as state → p, ``healthy`` None when absent."""
-    rows = batch.to_pylist()
-    for row in rows:
-        row["probabilities"] = {p["state"]: p["probability"] for p in row.get("probabilities") or []}
-        row.setdefault("healthy", None)
-    return rows
+    """A ``cycle_verdict`` message's rows (:func:`cycle_row`)."""
+    return [cycle_row(row) for row in batch.to_pylist()]
 
 
 @dataclass
@@ -189,5 +193,6 @@ def component_cells(component: str, row: ComponentRow) -> list[Any]:
 COMPONENT_COLUMNS = ["component", "state", "level", "probability", "healthy state", "since cycle", "novelty", "truth"]
 """Headers of :func:`component_cells`."""
 
-__all__ = ["COMPONENT_COLUMNS", "ComponentRow", "CycleTable", "component_cells", "component_level", "cycle_rows",
+__all__ = ["COMPONENT_COLUMNS", "ComponentRow", "CycleTable", "component_cells", "component_level", "cycle_row",
+           "cycle_rows",
            "machine_verdict", "render_components"]

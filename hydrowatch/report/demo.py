@@ -1,13 +1,16 @@
 """The demo's HTML report: the live fleet first (which machines need attention, since when, why), then the
-models, their accuracy on other seeds and commands, and the training detail."""
+models, their accuracy on other seeds and commands, and the training detail; and the fleet section of a rig's
+cycles machines (``demo --rig``: each machine's verdict and its components' from the bus's ``cycle_verdict`` rows)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from hydrowatch.report.fleet_table import wear_cells
+from hydrowatch.report.cycle_table import COMPONENT_COLUMNS, CycleTable, component_cells, cycle_row
+from hydrowatch.report.fleet_table import FleetTable, wear_cells
 from hydrowatch.report.html import Section, write_html
 from hydrowatch.report.plots import confusion_png, timeline_png
 from hydrowatch.report.training import training_section
@@ -56,6 +59,35 @@ def fleet_section(live: Mapping[str, Any], states: list[str]) -> Section:
     truth = {m: [(t, t + 0.1, s) for t, s in points] for m, points in live["truth"].items()}
     section.text("True labels of the simulated machines (nearest named level of the current fault):")
     section.image(timeline_png(truth, states), "true labels")
+    return section
+
+
+def cycles_fleet_section(rows: Sequence[Mapping[str, Any]]) -> Section:
+    """The fleet of a rig's cycles machines after the bus's ``cycle_verdict`` rows (dicts with their ``machine``):
+    machines most urgent first with their verdict on their last cycle (:mod:`hydrowatch.report.cycle_table`), since
+    when and why; then per machine each component's last verdict, since which cycle, and the cycles read per state."""
+    table, cycles = FleetTable(), CycleTable()
+    by_machine: dict[str, list[dict[str, Any]]] = {}
+    for row in rows:
+        by_machine.setdefault(str(row["machine"]), []).append(cycle_row(row))
+    for machine, mine in sorted(by_machine.items()):
+        for verdict in cycles.update(machine, sorted(mine, key=lambda r: r["cycle"])):
+            table.update(machine, verdict)
+    attention = table.attention()
+    section = Section("Fleet: which machines need attention").text(
+        f"{len(attention)} of {len(table.latest())} machines need attention"
+        + (": " + ", ".join(f"{a['machine']} ({a['state']})" for a in attention) + "." if attention else ".")
+        + " A machine's verdict is its verdict on its last cycle: healthy when every component is in its healthy "
+          "state, unknown when a component is, else the components that are not healthy (component=state).")
+    section.table(["machine", "state", "since [s]", "probability", "why", "last cycle end [s]", "cycles"],
+                  [[m, r.state, f"{r.since_s:.0f}", r.probability, r.why(), f"{r.last_s:.0f}", r.windows]
+                   for m, r in table.by_urgency().items()])
+    for machine, parts in cycles.by_machine().items():
+        counts = {c: Counter(r["state"] for r in by_machine[machine] if r["component"] == c) for c in parts}
+        section.text(f"{machine}: each component's verdict on the last cycle, and the cycles read per state.")
+        section.table([*COMPONENT_COLUMNS, "cycles per state"],
+                      [[*component_cells(c, r), ", ".join(f"{s}: {n}" for s, n in sorted(counts[c].items()))]
+                       for c, r in parts.items()])
     return section
 
 

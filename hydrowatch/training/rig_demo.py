@@ -9,8 +9,9 @@
    publishes the recording, every cycle's per-component verdicts are collected off ``…/cycle_health``
    (:func:`~hydrowatch.training.rig_bus.score_on_bus`); the registered model also scores the cycles offline
    (``scores.json``, the ``score --json`` object), and the bus's verdicts are compared with it;
-4. report: ``report.html`` with the counts, the honest split's figures and confusion matrices per component, and
-   the replay's counts.
+4. report: ``report.html`` opening with the fleet (the replayed machine's verdict on its last cycle, since when and
+   why, and each component's; :func:`~hydrowatch.report.demo.cycles_fleet_section`), then the counts, the honest
+   split's figures and confusion matrices per component, and the replay's counts.
 
 The replay scores cycles the model was fitted on (all of them): its accuracy shows that the registered model reads
 the data back as trained, not how well it generalises; the honest split says that.
@@ -26,6 +27,7 @@ from typing import Any
 from hydrowatch.io.rig_cycles import read_rig_data, write_rig_recording
 from hydrowatch.io.wide import Cycles
 from hydrowatch.methods.cycles.train import state_name
+from hydrowatch.report.demo import cycles_fleet_section
 from hydrowatch.report.html import Section, write_html
 from hydrowatch.report.plots import confusion_png
 from hydrowatch.rig import RigDescription, data_root
@@ -80,7 +82,8 @@ def run_rig_demo(rig: str, out: str | Path, *, data: str | Path | None = None,
                                  rows=len(cycles) * len(components), logs=out / "logs")
     replay = bus_figures(rows, scored, components)
     report = write_html(out / "report.html", f"hydrowatch on rig {description.name}",
-                        _sections(description, folder, imported, result.evaluation, trained, replay))
+                        [cycles_fleet_section(rows),
+                         *_sections(description, folder, imported, result.evaluation, trained, replay)])
     return {"rig": description.name, "data": str(folder), "cycles": len(cycles), "imported": imported,
             "recording": str(recording), "bus_seconds": seconds,
             "honest": trained["components"], "run_id": trained["run_id"], "model_uri": trained["model_uri"],
