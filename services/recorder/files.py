@@ -65,7 +65,8 @@ class RecordingFiles:
     extra_metadata : dict
         Added to every file's ``hydrowatch`` metadata (e.g. recorder id, shard).
     foxglove : bool
-        Write JSON that Foxglove plots (samples, verdicts, relative entropies; heartbeats left out)
+        Write JSON that Foxglove plots (samples, verdicts, relative entropies, forecasts, expected sensors, cycle
+        verdicts; heartbeats and a rig's raw cycles left out)
         instead of the payloads as received. Costs ~5 µs per sample: for a few machines on a bench.
     """
 
