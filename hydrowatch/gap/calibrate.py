@@ -336,16 +336,7 @@ def calibrate(aligned: AlignedRecording, nominal: PlantParameters, *, free: tupl
     """
     fixed = {k: dict(v) for k, v in (effects or {}).items()}
     design = nominal if prior else None
-    # Stage 1 leaves out the second of two parameters that act alike (Cvl beside Cp: both leak supply → tank).
-    slow = tuple(n for n in free if n in STATIC and not (n == "Cvl" and "Cp" in free))
-    if "Dp" in free and pump is None:
-        start, prediction = _pump_start(aligned, nominal, fixed)
-    else:
-        start = nominal if pump is None else nominal.replace(Dp=pump)
-        prediction = simulate_sensors(aligned, [start], [fixed])[0]
-    if slow:
-        stage1 = fit_output_error(aligned, ModelSpace(start, fixed, slow), max_nfev=max_nfev, band_hz=SLOW_BAND_HZ)
-        start, prediction = stage1.parameters, stage1.prediction
+    start, prediction = static_stage(aligned, nominal, free=free, effects=fixed, max_nfev=max_nfev, pump=pump)
     weight = prior_weight(aligned, prediction) if prior else 0.0
     fit = fit_output_error(aligned, ModelSpace(start, fixed, free, effect_free, design, weight), max_nfev=2 * max_nfev)
     k = fit.space.names.index("Dp") if "Dp" in free else -1
@@ -358,6 +349,26 @@ def calibrate(aligned: AlignedRecording, nominal: PlantParameters, *, free: tupl
     again = fit_output_error(aligned, ModelSpace(smaller, fit.effects, free, effect_free, design, weight),
                              max_nfev=2 * max_nfev)
     return again if again.fit_cost < fit.fit_cost else fit
+
+
+def static_stage(aligned: AlignedRecording, nominal: PlantParameters, *, free: tuple[str, ...] = CALIBRATED,
+                 effects: Mapping[str, Mapping[str, float]] | None = None, max_nfev: int = 15,
+                 pump: float | None = None) -> tuple[PlantParameters, np.ndarray]:
+    """Stage 1 of :func:`calibrate`: ``nominal`` with the STATIC parameters among ``free`` fitted to the
+    errors low-passed at SLOW_BAND_HZ (``effects`` held as given), starting from the PUMP_SCAN pump
+    displacement (or ``pump``, m³/rad); returns the parameters and their prediction, shape (3, n)."""
+    fixed = {k: dict(v) for k, v in (effects or {}).items()}
+    # Stage 1 leaves out the second of two parameters that act alike (Cvl beside Cp: both leak supply → tank).
+    slow = tuple(n for n in free if n in STATIC and not (n == "Cvl" and "Cp" in free))
+    if "Dp" in free and pump is None:
+        start, prediction = _pump_start(aligned, nominal, fixed)
+    else:
+        start = nominal if pump is None else nominal.replace(Dp=pump)
+        prediction = simulate_sensors(aligned, [start], [fixed])[0]
+    if slow:
+        stage1 = fit_output_error(aligned, ModelSpace(start, fixed, slow), max_nfev=max_nfev, band_hz=SLOW_BAND_HZ)
+        start, prediction = stage1.parameters, stage1.prediction
+    return start, prediction
 
 
 PUMP_SCAN = tuple(float(v) for v in np.linspace(0.6, 1.4, 9))
