@@ -289,12 +289,18 @@ def _prune(aligned: AlignedRecording, diagnosis: Diagnosis, current: OutputError
     return current
 
 
-def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float) -> bool:
+def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float, candidate: Candidate) -> bool:
     """Whether a screened candidate gets its full calibration: always when no earlier confirmation
-    passed; after a passing one only when its screening gain is ≥ CONFIRM_SHARE of the leader's."""
-    if not any(t.passed for t in trials):
+    passed; after a passing one when its screening gain is ≥ CONFIRM_SHARE of the leader's, or when it
+    shares a partner parameter with the passing leader (effects that bend the same plant parameters
+    stand in for each other, and the screening's short fits rank them poorly: shaft compliance
+    screened ahead of gear backlash at more than twice its gain on populations 2031, 2034 and 2035,
+    and a calibration with compliance alone then passed)."""
+    passed = [t for t in trials if t.passed]
+    if not passed:
         return True
-    return screen_gain >= CONFIRM_SHARE * lead
+    shared = any(set(candidate.partners) & set(t.refit.candidate.partners) for t in passed)
+    return shared or screen_gain >= CONFIRM_SHARE * lead
 
 
 def _recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
@@ -414,7 +420,7 @@ def diagnose(
         trials: list[Trial] = []
         lead = screened[0][0] if screened else 0.0
         for rank, (screen_gain, s, data, base) in enumerate(screened):
-            if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead):
+            if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead, s.candidate):
                 full = _recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
