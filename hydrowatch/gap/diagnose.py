@@ -29,6 +29,8 @@ later candidate is not credited with what more iterations of the earlier fit wou
 (the false second effects of round 1: quadratic drag "explaining" an unconverged backlash fit).
 When no candidate passes but one paid only through the plant parameters refitted with it (its
 effect indistinguishable from absent), the current model takes those values (:func:`_absorb`).
+After an effect joins a model that holds others, an earlier one that it makes redundant is dropped
+(:func:`_prune`, the backward step of a stepwise selection).
 The loop stops when no candidate passes, when the held-out residual of every sensor is white, or
 when ``max_effects`` are in the model.
 """
@@ -42,14 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import (
-    ModelSpace,
-    OutputErrorFit,
-    _effective_fraction,
-    fit_output_error,
-    prior_weight,
-    static_stage,
-)
+from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, fit_output_error
 from hydrowatch.gap.candidates import (
     SCREEN_SECONDS,
     SLOW_EFFECTS,
@@ -57,10 +52,10 @@ from hydrowatch.gap.candidates import (
     Refit,
     holdout_cost,
     refit,
-    scan_magnitude,
     untestable,
 )
 from hydrowatch.gap.discovery import residual_test
+from hydrowatch.gap.hypothesis import recalibrate
 from hydrowatch.gap.locate import noise_std, whiteness
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -303,51 +298,6 @@ def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float, cand
     return shared or screen_gain >= CONFIRM_SHARE * lead
 
 
-def _recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
-                 nominal: PlantParameters | None, pump: float | None = None) -> Refit:
-    """The full calibration (calibrate.py) under the hypothesis "current model + the screened effect":
-    every plant parameter and every free effect parameter estimated, with the accepted effects and the
-    candidate's screened values as the effects' starting point.
-
-    Its start is the better of two kinds, picked by a magnitude scan of the effect on the whole record
-    (:func:`scan_magnitude`, one batched simulation): the design values with the static parameters
-    fitted (stage 1 of the calibration, the effect held at its screened value), or the current model
-    (as it is, and with the candidate's partner parameters set to stage 1's values). The design start
-    matters when the calibration without the effect bent several parameters to mimic it (a dead time
-    into a slow spool, a low brake torque and a high viscous load: a local refit from there stayed in
-    that valley); the current start when the effect's fit needs the dynamics right to move at all (gear
-    backlash on dev seed 7: from the design values b crawled 0.0095 → 0.012 in 30 iterations, cost
-    0.254; from the calibrated model it reached 0.0289 of the true 0.0287, cost 0.0055). The pump
-    displacement starts at ``pump`` (m³/rad; the null calibration's) instead of the calibration's pump
-    scan and restart (its first stage refits it with the other static parameters).
-    """
-    c = screened.candidate
-    screened_effect = screened.fit.effects[c.id]
-    effects = {**{k: dict(v) for k, v in current.effects.items()}, c.id: dict(screened_effect)}
-    effect_free = tuple((e, p) for e, p in current.space.effect_free if e != c.id) + tuple((c.id, p) for p in c.free)
-    design = nominal or current.space.prior or current.parameters
-    free = current.space.plant_free
-    static, prediction = static_stage(aligned, design, free=free, effects=effects, max_nfev=STAGE_NFEV,
-                                      pump=pump if "Dp" in free else None)
-    scanned = replace(c, scan=(*c.scan, screened_effect[c.free[0]]),
-                      fixed={**c.fixed, **{k: v for k, v in screened_effect.items() if k != c.free[0]}})
-    start, value, _ = scan_magnitude(aligned, current, scanned, [static])
-    effects[c.id] = scanned.effect(**{c.free[0]: value})
-    if c.id == "stribeck_friction":
-        effects[c.id]["Tc"] = min(effects[c.id]["Tc"], value)
-    prior = current.space.prior is not None
-    space = ModelSpace(start, effects, free, effect_free, design if prior else None,
-                       prior_weight(aligned, prediction) if prior else 0.0)
-    fit = fit_output_error(aligned, space, max_nfev=2 * STAGE_NFEV)
-    event(log, "hypothesis start", effect=c.label, start="design" if start is static else "current",
-          value=round(value, 6))
-    return Refit(c, fit, holdout_cost(aligned, fit.prediction))
-
-
-STAGE_NFEV = 15
-"""Iterations of a hypothesis's static stage; its joint fit gets twice as many (calibrate's defaults)."""
-
-
 def diagnose(
     aligned: AlignedRecording,
     calibrated: OutputErrorFit,
@@ -421,7 +371,7 @@ def diagnose(
         lead = screened[0][0] if screened else 0.0
         for rank, (screen_gain, s, data, base) in enumerate(screened):
             if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead, s.candidate):
-                full = _recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
+                full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
