@@ -124,7 +124,7 @@ def one_run(case: str, population: int, unit: int) -> dict:
     located = sensors[0] if sensors else max(ratio, key=lambda s: ratio[s])
     right = set(named) == {"unidentified"} if expected == ["unidentified"] else sorted(named) == sorted(expected)
     return {"case": case, "population": population, "unit": unit, "right": right,
-            "named": named, "located": located, "matters": ratio[located] >= 2.0,
+            "named": named, "dropped": report.get("dropped", []), "located": located, "matters": ratio[located] >= 2.0,
             "calibrated_over_noise": {s: round(v, 3) for s, v in ratio.items()},
             "unrevealable": [e for e in expected if e in report["experiments"]],
             "tested": report["discovery_test"]["calibrated"]["beyond"],

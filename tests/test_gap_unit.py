@@ -64,6 +64,7 @@ def test_one_effect_on_a_random_unit_is_named_alone() -> None:
     assert report["effects"][0]["parameters"]["tau"] == pytest.approx(0.012, rel=0.1)
     assert report["discovery_test"]["calibrated"]["beyond"]
     assert report["discovery_test"]["final"]["beyond"] == []
+    assert report["dropped"] == []
 
 
 def test_the_discovery_test_passes_white_noise_and_fails_an_unexplained_error() -> None:

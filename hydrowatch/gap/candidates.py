@@ -210,7 +210,7 @@ def holdout_cost(aligned: AlignedRecording, prediction: np.ndarray) -> float:
     return float(np.sum(e**2) / aligned.holdout_mask.sum())
 
 
-def _scan(
+def scan_magnitude(
     aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters]
 ) -> tuple[PlantParameters, float, float]:
     """The plant parameters (the base model's or one of ``origins``) and starting value of the
@@ -279,7 +279,7 @@ def refit(
     if start_effect is not None:
         effect = candidate.effect(**start_effect)
     else:
-        params, start, change = _scan(aligned, base, candidate, origins)
+        params, start, change = scan_magnitude(aligned, base, candidate, origins)
         if require_gain and change >= 0.0:
             return None
         effect = candidate.effect(**{candidate.free[0]: start})

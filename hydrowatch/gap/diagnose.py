@@ -29,6 +29,8 @@ later candidate is not credited with what more iterations of the earlier fit wou
 (the false second effects of round 1: quadratic drag "explaining" an unconverged backlash fit).
 When no candidate passes but one paid only through the plant parameters refitted with it (its
 effect indistinguishable from absent), the current model takes those values (:func:`_absorb`).
+After an effect joins a model that holds others, an earlier one that it makes redundant is dropped
+(:func:`_prune`, the backward step of a stepwise selection).
 The loop stops when no candidate passes, when the held-out residual of every sensor is white, or
 when ``max_effects`` are in the model.
 """
@@ -42,7 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, calibrate, fit_output_error
+from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, fit_output_error
 from hydrowatch.gap.candidates import (
     SCREEN_SECONDS,
     SLOW_EFFECTS,
@@ -53,6 +55,7 @@ from hydrowatch.gap.candidates import (
     untestable,
 )
 from hydrowatch.gap.discovery import residual_test
+from hydrowatch.gap.hypothesis import recalibrate
 from hydrowatch.gap.locate import noise_std, whiteness
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -65,6 +68,10 @@ BLOCK_SAMPLES = 200
 
 POLISH_NFEV = 20
 """Solver iterations that continue an accepted model's joint fit before the next round."""
+
+PRUNE_NFEV = 8
+"""Solver iterations of the refit without an earlier effect (backward step): a redundant effect's
+refit starts next to its optimum and converges in a few; a needed one stays far off in any number."""
 
 WHITE_LIMIT = 3.0
 """Normalised Ljung–Box statistic below which a held-out residual counts as white noise."""
@@ -131,6 +138,8 @@ class Diagnosis:
         Candidates this recording cannot show, with the experiment that would.
     scanned_out : list of list of str
         Per round, the candidates no magnitude of which lowered the fitting cost (not fitted further).
+    dropped : list of str
+        Effects accepted in an earlier round and dropped once a later one made them redundant (:func:`_prune`).
     """
 
     final: OutputErrorFit
@@ -138,6 +147,7 @@ class Diagnosis:
     rounds: list[list[Trial]] = field(default_factory=list)
     unrevealable: dict[str, str] = field(default_factory=dict)
     scanned_out: list[list[str]] = field(default_factory=list)
+    dropped: list[str] = field(default_factory=list)
 
 
 def _normalised_sq_error(aligned: AlignedRecording, prediction: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -226,33 +236,66 @@ def _polish(aligned: AlignedRecording, refit: Refit) -> Refit:
     return Refit(refit.candidate, fit, holdout_cost(aligned, fit.prediction))
 
 
-def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float) -> bool:
-    """Whether a screened candidate gets its full calibration: always when no earlier confirmation
-    passed; after a passing one only when its screening gain is ≥ CONFIRM_SHARE of the leader's."""
-    if not any(t.passed for t in trials):
-        return True
-    return screen_gain >= CONFIRM_SHARE * lead
+def _without(aligned: AlignedRecording, current: OutputErrorFit, effect_id: str) -> OutputErrorFit:
+    """The current model refitted without one of its effects: the same plant and other effects'
+    coordinates as the start, PRUNE_NFEV solver iterations."""
+    space = current.space
+    keep = [i for i, name in enumerate(space.names) if not name.startswith(f"{effect_id}.")]
+    reduced = replace(space, effects={k: dict(v) for k, v in current.effects.items() if k != effect_id},
+                      effect_free=tuple((e, p) for e, p in space.effect_free if e != effect_id))
+    return fit_output_error(aligned, reduced, current.z[keep], max_nfev=PRUNE_NFEV)
 
 
-def _recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
-                 nominal: PlantParameters | None, pump: float | None = None) -> Refit:
-    """The full calibration (calibrate.py) under the hypothesis "current model + the screened effect":
-    from the design values, with the accepted effects and the candidate's screened values as the
-    effects' starting point, every plant parameter and every free effect parameter estimated.
+def _still_needed(aligned: AlignedRecording, without: OutputErrorFit, current: OutputErrorFit, candidate: Candidate,
+                  min_gain: float, n_se: float, min_bic: float) -> tuple[bool, dict[str, float]]:
+    """Whether ``current`` beats the model without ``candidate``'s effect by the acceptance rules of gain,
+    consistency and ΔBIC (the effect, judged last, would still be added), and that judgement."""
+    j = judge(aligned, without, Refit(candidate, current, holdout_cost(aligned, current.prediction)))
+    return j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic, j
 
-    Starting from the design values matters: the calibration without the effect may have bent
-    several parameters to mimic it (a dead time into a slow spool, a low brake torque and a high
-    viscous load), and a local refit from there stays in that valley. The pump displacement starts
-    at ``pump`` (m³/rad; the null calibration's) instead of the calibration's pump scan and restart
-    (its first stage refits it with the other static parameters).
+
+def _prune(aligned: AlignedRecording, diagnosis: Diagnosis, current: OutputErrorFit, min_gain: float,
+           n_se: float, min_bic: float) -> OutputErrorFit:
+    """Backward step of the stepwise selection: drop an earlier accepted effect that the one added last
+    makes redundant.
+
+    A round-1 winner can be an effect that stands in for the real one (shaft compliance for gear
+    backlash: both soften the gearbox; seed 2031, backlash + air), and the later round that finds the real
+    effect leaves the stand-in in the model. Each earlier effect is taken out (the model refitted
+    without it, :func:`_without`) and judged as if it were added last; one that no longer passes gain,
+    consistency and ΔBIC is dropped (the one whose removal costs least first, then again), listed in
+    ``diagnosis.dropped`` and not tried again.
     """
-    c = screened.candidate
-    effects = {**{k: dict(v) for k, v in current.effects.items()}, c.id: dict(screened.fit.effects[c.id])}
-    effect_free = tuple((e, p) for e, p in current.space.effect_free if e != c.id) + tuple((c.id, p) for p in c.free)
-    fit = calibrate(aligned, nominal or current.space.prior or current.parameters, free=current.space.plant_free,
-                    effects=effects, prior=current.space.prior is not None, effect_free=effect_free,
-                    pump=pump if "Dp" in current.space.plant_free else None)
-    return Refit(c, fit, holdout_cost(aligned, fit.prediction))
+    while len(diagnosis.accepted) > 1:
+        verdicts = []
+        for trial in diagnosis.accepted[:-1]:
+            without = _without(aligned, current, trial.refit.candidate.id)
+            needed, j = _still_needed(aligned, without, current, trial.refit.candidate, min_gain, n_se, min_bic)
+            event(log, "effect still needed", effect=trial.refit.candidate.label, needed=needed,
+                  gain=round(j["gain"], 4), delta_bic=round(j["delta_bic"], 1))
+            if not needed:
+                verdicts.append((j["gain"], trial, without))
+        if not verdicts:
+            break
+        _, trial, without = min(verdicts, key=lambda v: v[0])
+        diagnosis.accepted.remove(trial)
+        diagnosis.dropped.append(trial.refit.candidate.label)
+        current = without
+    return current
+
+
+def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float, candidate: Candidate) -> bool:
+    """Whether a screened candidate gets its full calibration: always when no earlier confirmation
+    passed; after a passing one when its screening gain is ≥ CONFIRM_SHARE of the leader's, or when it
+    shares a partner parameter with the passing leader (effects that bend the same plant parameters
+    stand in for each other, and the screening's short fits rank them poorly: shaft compliance
+    screened ahead of gear backlash at more than twice its gain on populations 2031, 2034 and 2035,
+    and a calibration with compliance alone then passed)."""
+    passed = [t for t in trials if t.passed]
+    if not passed:
+        return True
+    shared = any(set(candidate.partners) & set(t.refit.candidate.partners) for t in passed)
+    return shared or screen_gain >= CONFIRM_SHARE * lead
 
 
 def diagnose(
@@ -302,10 +345,10 @@ def diagnose(
     diagnosis = Diagnosis(calibrated, unrevealable=untestable(candidates, aligned, calibrated.prediction[1]))
     testable = [c for c in candidates if c.label not in diagnosis.unrevealable]
     current = calibrated
-    while len(diagnosis.accepted) < max_effects:
+    while len(diagnosis.accepted) < max_effects and len(diagnosis.rounds) < 2 * max_effects:
         if diagnosis.accepted and not residual_test(aligned, current.prediction, len(current.z)).fails:
             break
-        present = set(current.effects)
+        present = set(current.effects) | {c.id for c in testable if c.label in diagnosis.dropped}
         pool = [c for c in testable if c.id not in present]
         if not pool:
             break
@@ -327,8 +370,8 @@ def diagnose(
         trials: list[Trial] = []
         lead = screened[0][0] if screened else 0.0
         for rank, (screen_gain, s, data, base) in enumerate(screened):
-            if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead):
-                full = _recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
+            if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead, s.candidate):
+                full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
@@ -355,7 +398,7 @@ def diagnose(
         else:
             winner = passed[0]
         diagnosis.accepted.append(winner)
-        current = polished[id(winner)].fit
+        current = _prune(aligned, diagnosis, polished[id(winner)].fit, min_gain, n_se, min_bic)
     diagnosis.final = current
     return diagnosis
 

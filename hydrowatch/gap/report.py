@@ -182,7 +182,7 @@ def build_report(aligned: AlignedRecording, nominal: PlantParameters, nominal_pr
     report = {
         "mismatch": bool(effects), "effects": effects, "located": where, "fit": fit,
         "calibrated_parameters": table, "relations": [c.as_dict() for c in relations], "noise": noise,
-        "experiments": dict(diagnosis.unrevealable), "trials": trials,
+        "experiments": dict(diagnosis.unrevealable), "trials": trials, "dropped": list(diagnosis.dropped),
         "second_opinion": opinions[0].as_dict() if opinions else None,
     }
     if identifiability is not None:
