@@ -125,6 +125,9 @@ INFORMED = 0.5
 prior spread (:func:`level_uncertainty`)."""
 LEAKS = ("pump_leak", "motor_leak", "valve_leak")
 """Faults whose severity is a conductance in units of the reference conductance."""
+SUPPLY_FREE_FAULTS = ("load", "motor_leak")
+"""Faults whose parameters (TL; Ctm) the load and motor relations identify in full whichever supply commissioning
+chooses: a recording showing one is refused from the whole recording's fit, before the halves are fitted."""
 MIN_HEALTHY = 0.9
 """Smallest share of the recording's own windows the commissioned model must read ``healthy``."""
 WHOLE_FIT = "whole recording (its halves disagree)"
@@ -278,6 +281,9 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     half = windows.shape[0] // 2
     parts = (windows[:half], windows[half:])
     whole = identify_unit(windows, *args)
+    present = _fault_present(features, whole, SUPPLY_FREE_FAULTS)
+    if present:  # the load and motor relations are identified in full whichever supply is chosen
+        raise CommissioningError(present)
     first, second = (identify_unit(part, *args, start=whole.parameters) for part in parts)
     split = float(np.max(np.abs(np.log(_levels(features, first.parameters) / _levels(features, second.parameters)))))
     held_out = None
@@ -376,9 +382,12 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out)
 
 
-def _fault_present(features: ConditionFeatures, unit: UnitFit) -> str | None:
-    """The refusal message when an identified parameter reads as a trained fault (:data:`FAULT_FRACTION`), else None."""
+def _fault_present(features: ConditionFeatures, unit: UnitFit, faults: tuple[str, ...] | None = None) -> str | None:
+    """The refusal message when an identified parameter reads as a trained fault (:data:`FAULT_FRACTION`; of
+    ``faults`` only, when given), else None."""
     for fault, severity in implied_severities(features.nominal_, unit.parameters).items():
+        if faults is not None and fault not in faults:
+            continue
         warning = level_severity(fault, "warning", features.nominal_)
         if severity > FAULT_FRACTION[fault] * warning:
             return (f"the healthy recording looks like a {fault} fault already present: its parameters mean severity "
