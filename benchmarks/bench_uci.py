@@ -35,6 +35,7 @@ from sklearn.metrics import accuracy_score, f1_score
 
 from hydrowatch.cycles import ComponentClassifier, cycle_statistics, ordered_split, random_folds
 from hydrowatch.io.wide import Cycles, shared_cycles
+from hydrowatch.methods.cycles.train import TRANSIENTS
 from hydrowatch.rig import data_root
 
 FAST_HZ = 10.0
@@ -49,14 +50,14 @@ Fit = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 class _Classifier:
     """A :class:`ComponentClassifier` as a :data:`Fit`, keeping the nuisance dimension each fit chose."""
 
-    def __init__(self, features: str, reference: int, channels: list[int] | None = None) -> None:
-        self.features, self.reference, self.channels = features, reference, channels
+    def __init__(self, features: str, reference: int, channels: list[int] | None = None, **options: object) -> None:
+        self.features, self.reference, self.channels, self.options = features, reference, channels, options
         self.directions: list[int] = []
         self.healthy: float | None = None  # the judged component's (entropy)
 
     def __call__(self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, test: np.ndarray) -> np.ndarray:
         model = ComponentClassifier(features=self.features, reference=self.reference, channels=self.channels,
-                                    healthy=self.healthy)
+                                    healthy=self.healthy, **self.options)  # type: ignore[arg-type]
         model.fit(values, labels, nuisance)
         self.directions.append(model.directions_)
         return model.predict(test)
@@ -103,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     methods: dict[str, Fit] = {
         "statistics+LDA": _Classifier("statistics", reference),
         "transients+LDA": _Classifier("transients", reference, fast),
+        "transients shares+RR2": _Classifier("transients", reference, **TRANSIENTS),
         "entropy+LDA": _Classifier("entropy", reference, sensors),
     }
     if args.forest:
