@@ -8,6 +8,9 @@ description ``uci-hydraulic`` and prints, per component, accuracy and macro-F1 o
 - ``transients``: the pressures', motor power's and flows' values around each load change relative
   to their settled level, the other components' directions projected out (dimension chosen on the
   training cycles only) → LDA,
+- ``transients shares+RR2``: the ``cycles`` method's transients (every channel, each clear step also as shares of the
+  cycle's own step, a decision in the 2 leading discriminant directions: ``TRANSIENTS``), chosen on the UCI
+  accumulator's training cycles only (docs/rigs.md),
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a healthy
   reference model from the second of the cycle and the other channels, the relative entropy of each cycle's errors
   to each condition's base error distribution → LDA,
@@ -114,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(a) {args.folds} random folds (seed {args.seed}), (b) honest split 70/30 per class in recording order"
     )
     print(
-        f"{'component':12s} {'method':18s} {'(a) acc':>8s} {'(a) F1':>7s} {'(b) acc':>8s} {'(b) F1':>7s}  "
+        f"{'component':12s} {'method':22s} {'(a) acc':>8s} {'(a) F1':>7s} {'(b) acc':>8s} {'(b) F1':>7s}  "
         "nuisance dims [folds..., honest]"
     )
     for component in rig.components:
@@ -128,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             if isinstance(fit, _Classifier):
                 fit.directions = []
             print(
-                f"{component:12s} {name:18s} {s['random_acc']:8.1f} {s['random_f1']:7.1f} {s['honest_acc']:8.1f} "
+                f"{component:12s} {name:22s} {s['random_acc']:8.1f} {s['random_f1']:7.1f} {s['honest_acc']:8.1f} "
                 f"{s['honest_f1']:7.1f}  {dims} ({time.perf_counter() - start:.0f} s)",
                 flush=True,
             )
