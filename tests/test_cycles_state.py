@@ -112,7 +112,7 @@ def test_a_cycles_bundle_holds_no_pickle_and_loads_what_it_saved(rig_cycles: tup
     files = sorted(p.name for p in (root / "a" / "cycles").iterdir())
     assert files == ["model.json", "rig.toml"]
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
-    assert stored["format"] == 1 and set(stored["models"]) == {"valve", "pump"}
+    assert stored["format"] == 2 and set(stored["models"]) == {"valve", "pump"}
     loaded = load_bundle(root / "a")
     assert loaded.version == load_bundle(root / "b").version == bundle.version  # the same bytes each save
     values = cycles.values  # type: ignore[attr-defined]
@@ -133,6 +133,9 @@ def test_an_old_pickled_or_broken_cycles_bundle_is_refused_clearly(rig_cycles: t
                                         r"`hydrowatch train --rig tiny-cycles"):
         load_bundle(old)
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
+    (old / "cycles" / "model.json").write_text(json.dumps({**stored, "format": 3}))
+    with pytest.raises(DataError, match=r"model.json must be of format 1 or 2. Got 3"):
+        load_bundle(old)
     stored["models"]["valve"]["thresholds_"]["__array__"]["data"] = "not base64!"
     (old / "cycles" / "model.json").write_text(json.dumps(stored))
     with pytest.raises(DataError, match=r"models.valve.thresholds_ must be an array of dtype, shape and base64"):
