@@ -6,9 +6,12 @@ Two feature sets (module :mod:`hydrowatch.cycles.features` and :mod:`hydrowatch.
 - ``transients``: values around each load change relative to their settled level, with the
   directions the other components' conditions move them projected out. The dimension of that
   projection is chosen on the training cycles only, by the honest split applied inside them
-  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given;
+  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given; optionally also as shares of each cycle's own
+  step (``normalised``);
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a
   healthy reference model, the relative entropy of each cycle's errors to each condition's.
+
+The decision is LDA's, or (``discriminants``) reduced-rank LDA's in the leading discriminant directions only.
 """
 
 from __future__ import annotations
@@ -199,10 +202,12 @@ class ComponentClassifier:
         x = self._features(values)
         if self.discriminants is None:
             return np.asarray(self.model_.predict(x))
-        return np.asarray(self.classes_[self.predict_proba(values).argmax(axis=1)])
+        scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
+        return np.asarray(self.classes_[scores.argmax(axis=1)])
 
     def predict_proba(self, values: np.ndarray) -> np.ndarray:
-        """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes)."""
+        """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes); with
+        ``discriminants``, the softmax of the reduced-rank scores."""
         x = self._features(values)
         if self.discriminants is None:
             return np.asarray(self.model_.predict_proba(x))
