@@ -8,6 +8,9 @@ description ``uci-hydraulic`` and prints, per component, accuracy and macro-F1 o
 - ``transients``: the pressures', motor power's and flows' values around each load change relative
   to their settled level, the other components' directions projected out (dimension chosen on the
   training cycles only) → LDA,
+- ``transients shares+RR2``: the ``cycles`` method's transients (every channel, each clear step also as shares of the
+  cycle's own step, a decision in the 2 leading discriminant directions: ``TRANSIENTS``), chosen on the UCI
+  accumulator's training cycles only (docs/rigs.md),
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a healthy
   reference model from the second of the cycle and the other channels, the relative entropy of each cycle's errors
   to each condition's base error distribution → LDA,
@@ -35,6 +38,7 @@ from sklearn.metrics import accuracy_score, f1_score
 
 from hydrowatch.cycles import ComponentClassifier, cycle_statistics, ordered_split, random_folds
 from hydrowatch.io.wide import Cycles, shared_cycles
+from hydrowatch.methods.cycles.train import TRANSIENTS
 from hydrowatch.rig import data_root
 
 FAST_HZ = 10.0
@@ -49,14 +53,14 @@ Fit = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 class _Classifier:
     """A :class:`ComponentClassifier` as a :data:`Fit`, keeping the nuisance dimension each fit chose."""
 
-    def __init__(self, features: str, reference: int, channels: list[int] | None = None) -> None:
-        self.features, self.reference, self.channels = features, reference, channels
+    def __init__(self, features: str, reference: int, channels: list[int] | None = None, **options: object) -> None:
+        self.features, self.reference, self.channels, self.options = features, reference, channels, options
         self.directions: list[int] = []
         self.healthy: float | None = None  # the judged component's (entropy)
 
     def __call__(self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, test: np.ndarray) -> np.ndarray:
         model = ComponentClassifier(features=self.features, reference=self.reference, channels=self.channels,
-                                    healthy=self.healthy)
+                                    healthy=self.healthy, **self.options)  # type: ignore[arg-type]
         model.fit(values, labels, nuisance)
         self.directions.append(model.directions_)
         return model.predict(test)
@@ -103,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     methods: dict[str, Fit] = {
         "statistics+LDA": _Classifier("statistics", reference),
         "transients+LDA": _Classifier("transients", reference, fast),
+        "transients shares+RR2": _Classifier("transients", reference, **TRANSIENTS),
         "entropy+LDA": _Classifier("entropy", reference, sensors),
     }
     if args.forest:
@@ -112,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(a) {args.folds} random folds (seed {args.seed}), (b) honest split 70/30 per class in recording order"
     )
     print(
-        f"{'component':12s} {'method':18s} {'(a) acc':>8s} {'(a) F1':>7s} {'(b) acc':>8s} {'(b) F1':>7s}  "
+        f"{'component':12s} {'method':22s} {'(a) acc':>8s} {'(a) F1':>7s} {'(b) acc':>8s} {'(b) F1':>7s}  "
         "nuisance dims [folds..., honest]"
     )
     for component in rig.components:
@@ -126,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             if isinstance(fit, _Classifier):
                 fit.directions = []
             print(
-                f"{component:12s} {name:18s} {s['random_acc']:8.1f} {s['random_f1']:7.1f} {s['honest_acc']:8.1f} "
+                f"{component:12s} {name:22s} {s['random_acc']:8.1f} {s['random_f1']:7.1f} {s['honest_acc']:8.1f} "
                 f"{s['honest_f1']:7.1f}  {dims} ({time.perf_counter() - start:.0f} s)",
                 flush=True,
             )

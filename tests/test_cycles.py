@@ -141,3 +141,67 @@ def test_the_classifier_judges_later_cycles_under_another_components_new_conditi
         ComponentClassifier().predict(values)
     with pytest.raises(ParameterError, match="features must be one of"):
         ComponentClassifier(features="wavelets").fit(values, labels)
+
+
+def _one_step_pressure(rng: np.random.Generator, share: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """One pressure at 150 bar with a load step of ``height`` bar down at sample 6 and back up at 14; a share
+    ``share`` of each step is still unsettled in the sample that holds it. A second channel holds noise only."""
+    n = len(share)
+    pressure = np.full((n, 20), 150.0)
+    pressure[:, 6:14] -= height[:, None]
+    pressure[:, 6] += share * height
+    pressure[:, 14] -= share * height
+    return np.stack([pressure, rng.normal(0.0, 1.0, (n, 20))], axis=1) + rng.normal(0.0, 0.05, (n, 2, 20))
+
+
+def test_shares_of_the_cycles_own_step_do_not_move_with_the_step_height() -> None:
+    """``normalised``: the unsettled share of a step reads the same whatever the step's height (what an oil
+    temperature or a load moves), where the plain value grows with it; a missing step stays finite."""
+    rng = np.random.default_rng(4)
+    share, height = np.full(60, 0.25), np.r_[np.full(30, 40.0), np.full(30, 44.0)]
+    values = _one_step_pressure(rng, share, height)
+    transients = LoadChangeTransients(reference=0, normalised=True).fit(values)
+    np.testing.assert_array_equal(transients.steps_, [[0, 6], [0, 14]])  # the noise channel has no clear step
+    x = transients.transform(values)
+    plain, shares = x[:, : 2 * 2 * 3], x[:, 2 * 2 * 3 :].reshape(60, 2, 3)  # (channel, change, sample) then shares
+    for change in range(2):
+        np.testing.assert_allclose(shares[:, change, 1], 0.25, atol=0.01)  # the sample holding the change
+        np.testing.assert_allclose(shares[:, change, 0], 1.0, atol=0.01)  # the sample before: the whole step
+    unsettled = np.abs(plain[:, 1])  # channel 0, change at 6, its sample
+    assert unsettled[30:].mean() / unsettled[:30].mean() == pytest.approx(1.1, rel=0.01)
+    missing = values.copy()
+    missing[0, 0, :] = 150.0  # a cycle where the load never changed
+    missing_shares = transients.transform(missing)[0, 12:]
+    assert np.all(np.isfinite(missing_shares)) and np.abs(missing_shares).max() < 0.1  # the step bounded, not 0
+    back = LoadChangeTransients.from_state(transients.to_state())
+    np.testing.assert_array_equal(back.transform(values), x)
+    assert LoadChangeTransients(reference=0).fit(values).transform(values).shape == (60, 12)  # off by default
+    with pytest.raises(ParameterError, match="clear_step"):
+        LoadChangeTransients(reference=0, normalised=True, clear_step=0.0).fit(values)
+
+
+def test_reduced_rank_decision_ignores_a_trailing_direction_that_a_new_condition_overturns() -> None:
+    """Four ordered conditions along one channel; a second channel separates them pairwise by a small, precise
+    offset that a new operating condition shifts. Plain LDA follows the offset, one discriminant does not;
+    all ``n_classes - 1`` of them is plain LDA."""
+    rng = np.random.default_rng(5)
+
+    def cycles(labels: np.ndarray, shift: float) -> np.ndarray:
+        n = len(labels)
+        ordered = 4.0 * labels + rng.normal(0.0, 1.0, n)
+        alternating = np.where(labels % 2 == 0, 0.1, -0.1) + shift + rng.normal(0.0, 0.05, n)
+        return np.repeat(np.stack([ordered, alternating], axis=1)[:, :, None], 6, axis=2) + rng.normal(
+            0.0, 0.01, (n, 2, 6))
+
+    labels, later = np.repeat(np.arange(4.0), 100), np.repeat(np.arange(4.0), 50)
+    values, shifted = cycles(labels, 0.0), cycles(later, -0.25)
+    plain = ComponentClassifier(features="statistics", phases=1).fit(values, labels)
+    one = ComponentClassifier(features="statistics", phases=1, discriminants=1).fit(values, labels)
+    assert np.mean(plain.predict(shifted) == later) < 0.65
+    assert np.mean(one.predict(shifted) == later) > 0.8
+    np.testing.assert_allclose(one.predict_proba(shifted).sum(axis=1), 1.0)
+    full = ComponentClassifier(features="statistics", phases=1, discriminants=3).fit(values, labels)
+    np.testing.assert_array_equal(full.predict(shifted), plain.predict(shifted))
+    np.testing.assert_allclose(full.predict_proba(shifted), plain.predict_proba(shifted), atol=1e-9)
+    with pytest.raises(ParameterError, match="discriminants"):
+        ComponentClassifier(discriminants=0).fit(values, labels)

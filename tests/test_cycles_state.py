@@ -75,6 +75,33 @@ def test_a_fitted_open_set_classifier_goes_through_json_unchanged(rig_cycles: tu
     assert back.classifier.features == features and back.classifier_.directions_ == fitted.classifier_.directions_
 
 
+def test_step_shares_and_reduced_rank_go_through_json_and_a_state_from_before_them_loads_as_plain(
+        rig_cycles: tuple[Path, object]) -> None:
+    _, cycles = rig_cycles
+    values, valve = cycles.values, np.array([f"{v:g}" for v in cycles.labels["valve"]])  # type: ignore[attr-defined]
+    nuisance = cycles.labels["pump"][:, None]  # type: ignore[attr-defined]
+    values = values.copy()
+    values[:, 0, 5:12] += 30.0 - 0.3 * cycles.labels["valve"][:, None]  # type: ignore[attr-defined]  # every step 30 bar
+    values[:, 0, 6] -= 3.0 * (valve == "80")  # valve 80: a tenth still unsettled 1 s on
+    shares = OpenSetComponent(ComponentClassifier(features="transients", channels=[0], normalised=True,
+                                                  discriminants=1)).fit(values, valve, nuisance)
+    back = OpenSetComponent.from_state(from_json_tree(json.loads(json.dumps(to_json_tree(shares.to_state()))), "t"))
+    assert back.classifier.normalised and back.classifier_.discriminants == 1
+    assert back.classifier_.transients_ is not None and back.classifier_.transients_.steps_.shape == (2, 2)
+    np.testing.assert_array_equal(back.classifier_.predict_proba(values), shares.classifier_.predict_proba(values))
+    np.testing.assert_array_equal(back.predict(values), shares.predict(values))
+    plain = OpenSetComponent(ComponentClassifier(features="transients", channels=[0])).fit(values, valve, nuisance)
+    old = to_json_tree(plain.to_state())  # what a bundle saved before the two options holds
+    for parameters in (old["classifier"], old["classifier_"]["parameters"]):
+        del parameters["normalised"], parameters["discriminants"]
+    del old["classifier_"]["priors_"]
+    for key in ("normalised", "clear_step", "steps_", "typical_steps_"):
+        del old["classifier_"]["transients_"][key]
+    loaded = OpenSetComponent.from_state(from_json_tree(json.loads(json.dumps(old)), "old"))
+    assert not loaded.classifier_.normalised and loaded.classifier_.discriminants is None
+    np.testing.assert_array_equal(loaded.classifier_.predict_proba(values), plain.classifier_.predict_proba(values))
+
+
 def test_a_cycles_bundle_holds_no_pickle_and_loads_what_it_saved(rig_cycles: tuple[Path, object]) -> None:
     root, cycles = rig_cycles
     rig = load_rig(root / "rig.toml")
@@ -85,7 +112,7 @@ def test_a_cycles_bundle_holds_no_pickle_and_loads_what_it_saved(rig_cycles: tup
     files = sorted(p.name for p in (root / "a" / "cycles").iterdir())
     assert files == ["model.json", "rig.toml"]
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
-    assert stored["format"] == 1 and set(stored["models"]) == {"valve", "pump"}
+    assert stored["format"] == 2 and set(stored["models"]) == {"valve", "pump"}
     loaded = load_bundle(root / "a")
     assert loaded.version == load_bundle(root / "b").version == bundle.version  # the same bytes each save
     values = cycles.values  # type: ignore[attr-defined]
@@ -106,6 +133,9 @@ def test_an_old_pickled_or_broken_cycles_bundle_is_refused_clearly(rig_cycles: t
                                         r"`hydrowatch train --rig tiny-cycles"):
         load_bundle(old)
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
+    (old / "cycles" / "model.json").write_text(json.dumps({**stored, "format": 3}))
+    with pytest.raises(DataError, match=r"model.json must be of format 1 or 2. Got 3"):
+        load_bundle(old)
     stored["models"]["valve"]["thresholds_"]["__array__"]["data"] = "not base64!"
     (old / "cycles" / "model.json").write_text(json.dumps(stored))
     with pytest.raises(DataError, match=r"models.valve.thresholds_ must be an array of dtype, shape and base64"):

@@ -6,9 +6,12 @@ Two feature sets (module :mod:`hydrowatch.cycles.features` and :mod:`hydrowatch.
 - ``transients``: values around each load change relative to their settled level, with the
   directions the other components' conditions move them projected out. The dimension of that
   projection is chosen on the training cycles only, by the honest split applied inside them
-  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given;
+  (:func:`hydrowatch.cycles.splits.ordered_split`), unless given; optionally also as shares of each cycle's own
+  step (``normalised``);
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a
   healthy reference model, the relative entropy of each cycle's errors to each condition's.
+
+The decision is LDA's, or (``discriminants``) reduced-rank LDA's in the leading discriminant directions only.
 """
 
 from __future__ import annotations
@@ -57,6 +60,13 @@ class ComponentClassifier:
         (every channel is an input).
     healthy : str or float or None, default None
         The component's healthy label (``entropy`` fits its reference models on those cycles; required there).
+    normalised : bool, default False
+        ``transients`` also as shares of each cycle's own step (:class:`LoadChangeTransients`).
+    discriminants : int or None, default None
+        Decide in the leading ``discriminants`` discriminant directions only (reduced-rank LDA: the nearest
+        class centroid there, Mahalanobis, plus the log prior); None: all ``n_classes - 1`` (plain LDA).
+        Ordered conditions (an accumulator's precharge levels) lie along the leading directions; the last ones
+        separate them by small, condition-sensitive differences that a new operating condition overturns.
     """
 
     def __init__(
@@ -70,6 +80,8 @@ class ComponentClassifier:
         directions: int | None = None,
         channels: Sequence[int] | None = None,
         healthy: str | float | None = None,
+        normalised: bool = False,
+        discriminants: int | None = None,
     ) -> None:
         self.features = features
         self.grid_hz = grid_hz
@@ -79,6 +91,8 @@ class ComponentClassifier:
         self.directions = directions
         self.channels = channels
         self.healthy = healthy
+        self.normalised = normalised
+        self.discriminants = discriminants
 
     def _fit_once(
         self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, directions: int
@@ -95,7 +109,7 @@ class ComponentClassifier:
             lda = make_pipeline(StandardScaler(), LinearDiscriminantAnalysis()).fit(entropy.transform(values), labels)
             return None, None, entropy, LinearDiscriminant.from_fitted(lda)
         transients = LoadChangeTransients(
-            reference=self.reference, threshold=self.threshold, channels=self.channels
+            reference=self.reference, threshold=self.threshold, channels=self.channels, normalised=self.normalised
         ).fit(values)
         x = transients.transform(values)
         projection = NuisanceProjection(directions=directions).fit(x, labels, nuisance)
@@ -116,6 +130,8 @@ class ComponentClassifier:
         """
         if self.features not in FEATURES:
             raise ParameterError(f"features must be one of {list(FEATURES)}. Got {self.features!r}.")
+        if self.discriminants is not None and self.discriminants < 1:
+            raise ParameterError(f"discriminants must be >= 1 or None. Got {self.discriminants}.")
         if nuisance is None:
             nuisance = np.zeros((len(labels), 1))
         directions = self.directions
@@ -127,6 +143,7 @@ class ComponentClassifier:
             values, labels, nuisance, directions)
         projected = self.model_.transform(self._features(values))
         self.centroids_ = np.stack([projected[labels == c].mean(axis=0) for c in self.classes_])
+        self.priors_ = np.array([np.mean(labels == c) for c in self.classes_])
         return self
 
     def choose_directions(
@@ -142,7 +159,15 @@ class ComponentClassifier:
         for k in grid:
             transients, projection, _, model = self._fit_once(values[fit_part], labels[fit_part], nuisance[fit_part], k)
             x = self._transform(values[check], transients, projection)
-            scores.append(float(np.mean(model.predict(x) == labels[check])))
+            if self.discriminants is None:
+                predicted = model.predict(x)
+            else:
+                classes = np.unique(labels[fit_part])
+                projected = model.transform(self._transform(values[fit_part], transients, projection))
+                centroids = np.stack([projected[labels[fit_part] == c].mean(axis=0) for c in classes])
+                priors = np.array([np.mean(labels[fit_part] == c) for c in classes])
+                predicted = classes[self._reduced_scores(model.transform(x), centroids, priors).argmax(axis=1)]
+            scores.append(float(np.mean(predicted == labels[check])))
         self.validation_ = dict(zip(grid, scores, strict=True))
         best = max(scores)
         return next(k for k, s in zip(grid, scores, strict=True) if s >= best - 1e-3)
@@ -165,15 +190,30 @@ class ComponentClassifier:
             return self.entropy_.transform(values)
         return self._transform(values, self.transients_, self.projection_)
 
+    def _reduced_scores(self, projected: np.ndarray, centroids: np.ndarray, priors: np.ndarray) -> np.ndarray:
+        """Reduced-rank LDA's log posterior up to a constant: ``-d²/2 + log prior``, d the distance to each
+        centroid in the leading ``discriminants`` coordinates; shape (n_cycles, n_classes)."""
+        m = self.discriminants
+        d2 = ((projected[:, None, :m] - centroids[None, :, :m]) ** 2).sum(axis=2)
+        return np.asarray(-0.5 * d2 + np.log(priors)[None, :])
+
     def predict(self, values: np.ndarray) -> np.ndarray:
         """The condition of each cycle, shape (n_cycles,)."""
         x = self._features(values)
-        return np.asarray(self.model_.predict(x))
+        if self.discriminants is None:
+            return np.asarray(self.model_.predict(x))
+        scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
+        return np.asarray(self.classes_[scores.argmax(axis=1)])
 
     def predict_proba(self, values: np.ndarray) -> np.ndarray:
-        """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes)."""
+        """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes); with
+        ``discriminants``, the softmax of the reduced-rank scores."""
         x = self._features(values)
-        return np.asarray(self.model_.predict_proba(x))
+        if self.discriminants is None:
+            return np.asarray(self.model_.predict_proba(x))
+        scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
+        e = np.exp(scores - scores.max(axis=1, keepdims=True))
+        return np.asarray(e / e.sum(axis=1, keepdims=True))
 
     def distances(self, values: np.ndarray) -> np.ndarray:
         """Distance of each cycle to each class's training centroid in the discriminant space.
@@ -190,7 +230,7 @@ class ComponentClassifier:
         return np.asarray(np.linalg.norm(projected[:, None, :] - self.centroids_[None, :, :], axis=2))
 
     PARAMETERS: tuple[str, ...] = ("features", "grid_hz", "phases", "reference", "threshold", "directions",
-                                   "channels", "healthy")
+                                   "channels", "healthy", "normalised", "discriminants")
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and fitted arrays, no scikit-learn object (:mod:`hydrowatch.cycles.state` stores them)."""
@@ -199,7 +239,7 @@ class ComponentClassifier:
         parameters = {k: getattr(self, k) for k in self.PARAMETERS}
         parameters["channels"] = None if self.channels is None else [int(c) for c in self.channels]
         return {"parameters": parameters, "directions_": int(self.directions_), "classes_": self.classes_,
-                "centroids_": self.centroids_, "model_": self.model_.to_state(),
+                "centroids_": self.centroids_, "priors_": self.priors_, "model_": self.model_.to_state(),
                 "transients_": None if self.transients_ is None else self.transients_.to_state(),
                 "projection_": None if self.projection_ is None else self.projection_.to_state(),
                 "entropy_": None if self.entropy_ is None else self.entropy_.to_state()}
@@ -207,8 +247,9 @@ class ComponentClassifier:
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> ComponentClassifier:
         """The inverse of :meth:`to_state`."""
-        out = cls(**state["parameters"])
+        out = cls(**state["parameters"])  # a model saved before 2026-11-26 lacks normalised and discriminants
         out.directions_, out.classes_, out.centroids_ = state["directions_"], state["classes_"], state["centroids_"]
+        out.priors_ = state.get("priors_", np.full(len(out.classes_), 1.0 / len(out.classes_)))
         out.model_ = LinearDiscriminant.from_state(state["model_"])
         out.transients_ = None if state["transients_"] is None else LoadChangeTransients.from_state(
             state["transients_"])

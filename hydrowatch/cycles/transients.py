@@ -65,6 +65,18 @@ class LoadChangeTransients:
         Samples after the change, ``[a, b)``, whose mean is the settled level.
     channels : sequence of int or None, default None
         Channels whose transients are features; None: every channel.
+    normalised : bool, default False
+        Also give, for each (channel, change) with a clear step, the same samples as a share of the
+        cycle's own step: ``(x[s + k] - settled) / (before_level - settled)``, dimensionless, where
+        ``before_level`` is the mean of the two samples before the first feature sample, the step bounded to
+        ``[1/2, 2]`` times its median over the training cycles (a cycle whose step is missing, which happens on
+        a real rig, stays finite). A change whose
+        time constant or step height scales with the operating condition (oil viscosity, load) moves
+        the plain values in proportion; the share of the step not yet completed in the sample that holds
+        the change cancels the step height, and with it much of that condition.
+    clear_step : float, default 10.0
+        A (channel, change) is normalised when, over the training cycles, the median step exceeds
+        ``clear_step`` times the median absolute deviation of the steps and no cycle's step is 0.
     """
 
     def __init__(
@@ -76,6 +88,8 @@ class LoadChangeTransients:
         after: int = 2,
         settle: tuple[int, int] = (2, 4),
         channels: Sequence[int] | None = None,
+        normalised: bool = False,
+        clear_step: float = 10.0,
     ) -> None:
         self.reference = reference
         self.threshold = threshold
@@ -83,6 +97,8 @@ class LoadChangeTransients:
         self.after = after
         self.settle = settle
         self.channels = channels
+        self.normalised = normalised
+        self.clear_step = clear_step
 
     def fit(self, values: np.ndarray) -> LoadChangeTransients:
         """Locate the load changes on the training cycles, shape (n_cycles, n_channels, n_samples)."""
@@ -108,19 +124,46 @@ class LoadChangeTransients:
                 f"the reference channel's mean profile must change by more than threshold="
                 f"{self.threshold} somewhere inside the cycle. Got no such change; lower it."
             )
+        self.steps_, self.typical_steps_ = np.zeros((0, 2), dtype=int), np.zeros(0)
+        if self.normalised:
+            if self.clear_step <= 0:
+                raise ParameterError(f"clear_step must be > 0. Got {self.clear_step}.")
+            pairs = [(c, s) for c in self.channels_ for s in self.changes_ if s - self.before - 2 >= 0]
+            self.steps_ = np.array([(c, s) for c, s in pairs if self._clear(self._step(values, c, s))],
+                                   dtype=int).reshape(-1, 2)
+            self.typical_steps_ = np.array([np.median(self._step(values, c, s)) for c, s in self.steps_])
         return self
 
+    def _step(self, values: np.ndarray, channel: int, change: int) -> np.ndarray:
+        """Per cycle, the level before a change minus the level it settles at, channel's unit."""
+        a, b = self.settle
+        start = change - self.before
+        before = values[:, channel, start - 2 : start].mean(axis=1)
+        return np.asarray(before - values[:, channel, change + a : change + b].mean(axis=1))
+
+    def _clear(self, step: np.ndarray) -> bool:
+        median = float(np.median(step))
+        spread = float(np.median(np.abs(step - median)))
+        return bool(median != 0 and abs(median) > self.clear_step * spread)
+
     def transform(self, values: np.ndarray) -> np.ndarray:
-        """Features, shape (n_cycles, n_chosen_channels * n_changes * (before + after)), channel's unit."""
+        """Features, shape (n_cycles, n_chosen_channels * n_changes * (before + after) + n_steps * (before +
+        after)): the channel's unit, then (``normalised``) the shares of each clear step, dimensionless."""
         if not hasattr(self, "changes_"):
             raise NotFittedError("LoadChangeTransients must be fitted before transform. Call fit(values) first.")
         a, b = self.settle
-        values = values[:, self.channels_, :]
+        chosen = values[:, self.channels_, :]
         parts = []
         for s in self.changes_:
-            settled = values[:, :, s + a : s + b].mean(axis=2, keepdims=True)
-            parts.append(values[:, :, s - self.before : s + self.after] - settled)
-        return np.concatenate(parts, axis=2).reshape(values.shape[0], -1)
+            settled = chosen[:, :, s + a : s + b].mean(axis=2, keepdims=True)
+            parts.append(chosen[:, :, s - self.before : s + self.after] - settled)
+        plain = np.concatenate(parts, axis=2).reshape(values.shape[0], -1)
+        shares = []
+        for (c, s), typical in zip(self.steps_, self.typical_steps_, strict=True):
+            settled = values[:, c, s + a : s + b].mean(axis=1, keepdims=True)
+            step = typical * np.clip(self._step(values, c, s) / typical, 0.5, 2.0)
+            shares.append((values[:, c, s - self.before : s + self.after] - settled) / step[:, None])
+        return np.concatenate([plain, *shares], axis=1) if shares else plain
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and fitted arrays (:mod:`hydrowatch.cycles.state`)."""
@@ -128,15 +171,21 @@ class LoadChangeTransients:
             raise NotFittedError("LoadChangeTransients must be fitted before to_state. Call fit(values) first.")
         return {"reference": self.reference, "threshold": self.threshold, "before": self.before, "after": self.after,
                 "settle": list(self.settle), "channels": None if self.channels is None else list(self.channels),
-                "channels_": self.channels_, "changes_": self.changes_}
+                "normalised": self.normalised, "clear_step": self.clear_step,
+                "channels_": self.channels_, "changes_": self.changes_, "steps_": self.steps_,
+                "typical_steps_": self.typical_steps_}
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> LoadChangeTransients:
         """The inverse of :meth:`to_state`."""
         a, b = state["settle"]
         out = cls(reference=state["reference"], threshold=state["threshold"], before=state["before"],
-                  after=state["after"], settle=(a, b), channels=state["channels"])
+                  after=state["after"], settle=(a, b), channels=state["channels"],
+                  normalised=state.get("normalised", False), clear_step=state.get("clear_step", 10.0))
         out.channels_, out.changes_ = state["channels_"], state["changes_"]
+        # a model saved before 2026-11-26 has no shares
+        out.steps_ = state.get("steps_", np.zeros((0, 2), dtype=int))
+        out.typical_steps_ = state.get("typical_steps_", np.zeros(0))
         return out
 
 

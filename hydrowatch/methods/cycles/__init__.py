@@ -45,9 +45,12 @@ if TYPE_CHECKING:
 RIG_FILE, MODEL_FILE = "rig.toml", "model.json"
 LEGACY_MODEL_FILE = "model.pkl"
 """The pickle of scikit-learn objects bundles held before 2026-11-26: refused on loading."""
-FORMAT = 1
-"""Format of ``model.json``: per component the open-set classifier's parameters and arrays
-(:mod:`hydrowatch.cycles.state`)."""
+FORMAT = 2
+"""Format of ``model.json`` written: per component the open-set classifier's parameters and arrays
+(:mod:`hydrowatch.cycles.state`). 2 (2026-11-26): the transients' step shares and reduced-rank decision
+(``normalised``, ``discriminants``, ``steps_``, ``typical_steps_``, ``priors_``), which a reader of format 1 does not
+know; 1 is still read (its classifiers are plain transients and LDA)."""
+READ_FORMATS = (1, 2)
 
 
 class CyclesMethod(HealthMethod):
@@ -136,8 +139,8 @@ class CyclesMethod(HealthMethod):
         except (OSError, json.JSONDecodeError) as exc:
             raise DataError(f"a cycles bundle must hold {RIG_FILE} and a readable {MODEL_FILE}. Got: {exc}.",
                             str(folder)) from None
-        if not isinstance(stored, dict) or stored.get("format") != FORMAT:
-            raise DataError(f"{MODEL_FILE} must be of format {FORMAT}. Got "
+        if not isinstance(stored, dict) or stored.get("format") not in READ_FORMATS:
+            raise DataError(f"{MODEL_FILE} must be of format {' or '.join(map(str, READ_FORMATS))}. Got "
                             f"{stored.get('format') if isinstance(stored, dict) else type(stored).__name__}.",
                             str(folder / MODEL_FILE))
         source = str(folder / MODEL_FILE)

@@ -24,9 +24,13 @@ from hydrowatch.health.metrics import confusion_matrix, per_class_recall
 from hydrowatch.rig import Label, RigDescription
 from hydrowatch.rig.description import label_text
 
-FAST_HZ = 10.0
-"""Channels recorded at least this fast (Hz) make the ``transients`` features (slow ones have no load-change
-dynamics); a rig without such channels uses all of them."""
+TRANSIENTS: dict[str, Any] = {"channels": None, "normalised": True, "discriminants": 2}
+"""How the ``transients`` features are made and decided (:class:`~hydrowatch.cycles.ComponentClassifier`): every
+channel (the slow ones' values around the changes carry the condition's drift inside the cycle), each clear step
+also as shares of the cycle's own step (cancel the step height and much of the oil temperature), decided in the 2
+leading discriminant directions (reduced-rank LDA). Chosen on the training cycles of the UCI accumulator only
+(docs/rigs.md, issue 17; until 2026-11-26: the channels recorded at >= 10 Hz, plain LDA); for a component of 3
+conditions or fewer 2 directions are all of them."""
 PHASES = 6
 """Phase means per channel of the ``statistics`` features: 6 (the UCI cycle's), or the largest number below that
 divides a rig's samples per cycle."""
@@ -70,15 +74,14 @@ class CycleData:
 
 def classifier(features: str, rig: RigDescription, healthy: str) -> ComponentClassifier:
     """An unfitted classifier of ``features`` for ``rig``'s channels (``statistics``: :data:`PHASES` phase means;
-    ``transients``: the fast channels, the load changes found on the first channel; ``entropy``: a reference model
+    ``transients``: the load changes found on the first channel, :data:`TRANSIENTS`; ``entropy``: a reference model
     per channel of role ``sensor``, on the cycles of the component's ``healthy`` state)."""
     names = rig.channels.names
-    fast = [names.index(c) for c in rig.recorded_at_least(FAST_HZ)]
     sensors = [names.index(c.name) for c in rig.channels if c.role == "sensor"]
     phases = next(k for k in range(PHASES, 0, -1) if rig.window.samples % k == 0)
-    channels = {"transients": fast or None, "entropy": sensors or None}.get(features)
-    return ComponentClassifier(features=features, grid_hz=rig.window.grid_hz, phases=phases, channels=channels,
-                               healthy=healthy)
+    options = {"transients": TRANSIENTS, "entropy": {"channels": sensors or None}}.get(features, {})
+    return ComponentClassifier(features=features, grid_hz=rig.window.grid_hz, phases=phases, healthy=healthy,
+                               **options)
 
 
 def validation_accuracy(features: str, rig: RigDescription, data: CycleData) -> float:
