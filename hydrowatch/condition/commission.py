@@ -260,6 +260,8 @@ class SupplyChoice(NamedTuple):
     held_out: float | None = None
     """Held-out valve error of the kept-supply fits over that of the whole fits (:data:`HELD_OUT_RATIO`); None
     when the halves agreed and it was not needed."""
+    whole: UnitFit | None = None
+    """The whole recording's fit with every parameter (the self-check's fallback reuses it, :func:`commission`)."""
 
 
 def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray) -> SupplyChoice:
@@ -296,8 +298,8 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
         held_out = crossed(*kept) / max(crossed(first, second), 1e-300)
     if split <= SPLIT_AGREEMENT or (held_out is not None and held_out > HELD_OUT_RATIO):
         if level_uncertainty(features, whole) <= UNCERTAINTY_LIMIT:
-            return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out)
-    return SupplyChoice(identify_unit(windows, *args, RESTRICTED_PARAMETERS), KEPT, split, held_out)
+            return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out, whole)
+    return SupplyChoice(identify_unit(windows, *args, RESTRICTED_PARAMETERS), KEPT, split, held_out, whole)
 
 
 def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray) -> UnitFit:
@@ -362,7 +364,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         # recording's fit (the trained unit's pump or relief does not fit this one); for a whole fit the held-out
         # error preferred, the trained unit's supply.
         args = (valid, features.nominal_, features.sensors, features.viscosity_coefficient)
-        other_fit, other_supply = ((pump_capacity(features, identify_unit(*args), valid), WHOLE_FIT) if supply == KEPT
+        whole = choice.whole if choice.whole is not None else identify_unit(*args)
+        other_fit, other_supply = ((pump_capacity(features, whole, valid), WHOLE_FIT) if supply == KEPT
                                    else (identify_unit(*args, RESTRICTED_PARAMETERS), KEPT))
         if _fault_present(features, other_fit) is None:
             other = _moved(model, other_fit, valid, other_supply)
