@@ -3,6 +3,7 @@ test process and a child of it."""
 
 from __future__ import annotations
 
+import mmap
 import os
 import subprocess
 import sys
@@ -54,9 +55,13 @@ def test_a_tree_holds_the_children_and_their_memory() -> None:
 def test_the_sampler_samples_named_processes_and_leaves_out_those_gone() -> None:
     with UsageSampler(lambda: {"me": os.getpid(), "gone": 2**22 + 12345}, interval_s=0.05) as sampler:
         time.sleep(0.3)  # samples before the block (the sampler's first one may come after the next line)
-        block = np.ones(4_000_000)  # 32 MB while sampling
+        # 40 MB of fresh anonymous pages while sampling: an mmap of its own, not malloc, whose freed heap an earlier
+        # test may have left resident (then the RSS would not move)
+        block = mmap.mmap(-1, 40 << 20)
+        for offset in range(0, 40 << 20, mmap.PAGESIZE):
+            block[offset] = 1
         time.sleep(0.5)
-        del block
+        block.close()
         time.sleep(0.3)  # and after it is freed
     t, rss, cpu = sampler.series("me")
     assert len(t) >= 5 and np.all(np.diff(t) > 0) and np.all(np.diff(cpu) >= 0)
