@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from hydrowatch.cli import main
@@ -123,6 +124,25 @@ def test_train_and_score_a_rig_give_a_verdict_per_component(
         assert cycle["components"]["valve"]["state"] == "unknown"
         assert cycle["components"]["valve"]["truth"] == "unknown" and cycle["components"]["valve"]["novelty"] > 1
     assert scored["summary"]["accuracy"] == {"valve": 1.0, "pump": 1.0}
+
+    # the registered model through mlflow.pyfunc: a DataFrame of cycles (grid samples, a cycle id, two machines)
+    # gives per cycle and component the verdicts `score` gave
+    from hydrowatch.io.rig_cycles import read_rig_data
+    from hydrowatch.rig import load_rig
+
+    rig = load_rig(root / "rig.toml")
+    values = read_rig_data(root / "new", rig).values
+    frame = pd.concat([pd.DataFrame({"machine": "rig1" if i < 2 else "rig2", "cycle": 10 + i,
+                                     **dict(zip(rig.channels.names, cycle))}) for i, cycle in enumerate(values)])
+    model = mlflow.pyfunc.load_model(summary["model_uri"])
+    verdicts = model.predict(frame)
+    assert list(verdicts.columns) == ["machine", "cycle", "component", "state", "probability", "novelty"]
+    assert verdicts["machine"].tolist() == ["rig1"] * 4 + ["rig2"] * 4 and verdicts["cycle"].iloc[-1] == 13
+    for row in verdicts.itertuples():
+        expected = scored["cycles"][row.cycle - 10]["components"][row.component]
+        assert row.state == expected["state"] and row.probability == pytest.approx(expected["probability"])
+    with pytest.raises(DataError, match="machine rig2: cycle 13 must have 20 rows .* Got 19"):
+        model.predict(frame.iloc[:-1])
 
 
 def test_a_rig_folder_scores_without_labels_and_a_recording_is_refused(
