@@ -177,20 +177,23 @@ BASELINE_HONEST = {"cooler": 1.0, "valve": 1.0, "pump": 1.0, "accumulator": 0.54
 @pytest.mark.skipif(not (UCI / "profile.txt").is_file(), reason=f"the UCI hydraulic data is not at {UCI}")
 def test_the_real_rig_reaches_the_plain_baseline_per_component(tmp_path: Path) -> None:
     from hydrowatch.io.wide import read_cycles
-    from hydrowatch.methods.cycles import CyclesMethod
-    from hydrowatch.rig.description import rig_text
-    from hydrowatch.training.options import TrainingSettings
+    from hydrowatch.methods.cycles.train import component_data, component_states, evaluate_component
+    from hydrowatch.rig import builtin_rig
 
-    rig, text = rig_text("uci-hydraulic")
-    fitted = CyclesMethod.fit_cycles(text, rig, read_cycles(UCI, rig), TrainingSettings(method="cycles"))
-    figures = fitted.evaluation["components"]
+    # the honest split's figures as fit_cycles reports them (evaluate_component), without its final fit on every
+    # cycle (the tiny rig's tests cover that; here it would cost half the test's time)
+    rig = builtin_rig("uci-hydraulic")
+    cycles = read_cycles(UCI, rig)
+    figures = {c: evaluate_component(rig, component_data(rig, cycles.values, cycles.labels, c),
+                                     component_states(rig.label(c))) for c in BASELINE_HONEST}
     for component, baseline in BASELINE_HONEST.items():
         assert figures[component]["accuracy"] >= baseline - 0.005, (component, figures[component])
         assert figures[component]["unknown"] <= 0.01, (component, figures[component])  # known cycles stay known
-    # issue 17: the accumulator's step shares and 2 discriminants read 86.3 % (82.2 % with plain transients); every
+    # issue 17: the accumulator's step shares and 2 discriminants read 86.3 % (82.2 % with plain transients), with the
+    # trees' vote where the training covers the cycle's condition 86.1 % (one cycle less, 99.9 % on random folds); every
     # error is a neighbouring precharge (mostly 130 bar at cooler 100 % read 115 bar), nothing two levels away
     accumulator = figures["accumulator"]
-    assert accumulator["features"] == "transients" and accumulator["accuracy"] == pytest.approx(0.863, abs=0.002)
+    assert accumulator["features"] == "transients" and accumulator["accuracy"] == pytest.approx(0.861, abs=0.002)
     confusion = np.array(accumulator["confusion_matrix"])  # rows 130, 115, 100, 90; columns those, then unknown
     assert confusion[0, 2:].sum() == 0 and confusion[1, 2:].sum() == 0 and confusion[2, 0] == 0
     assert confusion[3, :3].sum() == 0
