@@ -9,8 +9,8 @@ description ``uci-hydraulic`` and prints, per component, accuracy and macro-F1 o
   to their settled level, the other components' directions projected out (dimension chosen on the
   training cycles only) → LDA,
 - ``transients shares+RR2``: the ``cycles`` method's transients (every channel, each clear step also as shares of the
-  cycle's own step, a decision in the 2 leading discriminant directions: ``TRANSIENTS``), chosen on the UCI
-  accumulator's training cycles only (docs/rigs.md),
+  cycle's own step, a decision in the 2 leading discriminant directions, and since branch rig17b the covered trees'
+  vote: ``TRANSIENTS``), chosen on the UCI accumulator's training cycles only (docs/rigs.md),
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a healthy
   reference model from the second of the cycle and the other channels, the relative entropy of each cycle's errors
   to each condition's base error distribution → LDA,
