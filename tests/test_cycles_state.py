@@ -96,11 +96,13 @@ def test_step_shares_and_reduced_rank_go_through_json_and_a_state_from_before_th
     old = to_json_tree(plain.to_state())  # what a bundle saved before the two options holds
     for parameters in (old["classifier"], old["classifier_"]["parameters"]):
         del parameters["normalised"], parameters["discriminants"]
-    del old["classifier_"]["priors_"]
+        del parameters["trees"], parameters["tree_weight"], parameters["coverage"]  # format 2 lacked these too
+    del old["classifier_"]["priors_"], old["classifier_"]["vote_"]
     for key in ("normalised", "clear_step", "steps_", "typical_steps_"):
         del old["classifier_"]["transients_"][key]
     loaded = OpenSetComponent.from_state(from_json_tree(json.loads(json.dumps(old)), "old"))
     assert not loaded.classifier_.normalised and loaded.classifier_.discriminants is None
+    assert loaded.classifier_.trees == 0 and loaded.classifier_.vote_ is None
     np.testing.assert_array_equal(loaded.classifier_.predict_proba(values), plain.classifier_.predict_proba(values))
 
 
