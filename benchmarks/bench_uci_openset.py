@@ -9,6 +9,9 @@ cycles) is fitted and reports
 - ``known unknown``: the share of the known levels' test cycles that read ``unknown`` (want 0 %);
 - ``known acc``: accuracy on those test cycles, an ``unknown`` counted wrong.
 
+The accumulator is judged with the plain statistics, the plain transients of the fast channels and the ``cycles``
+method's transients (``cycles-tr``); the statistics use every channel, as the method's do.
+
     OMP_NUM_THREADS=1 python benchmarks/bench_uci_openset.py   (about 1 min on one core)
 """
 
@@ -22,8 +25,12 @@ import numpy as np
 from hydrowatch.cycles import ComponentClassifier, ordered_split
 from hydrowatch.cycles.openset import UNKNOWN, OpenSetComponent
 from hydrowatch.io.wide import Cycles, shared_cycles
+from hydrowatch.methods.cycles.train import TRANSIENTS
 from hydrowatch.rig import data_root
 
+METHOD_TRANSIENTS = "cycles-tr"
+"""The ``cycles`` method's transients (``TRANSIENTS``: every channel, step shares, 2 discriminants, the covered trees'
+vote), beside the plain transients of the fast channels."""
 FAST_HZ = 10.0
 """Channels recorded at this rate or faster have their transients as features (as in bench_uci.py)."""
 
@@ -36,7 +43,11 @@ def held_out(
     nuisance = np.stack([cycles.labels[o] for o in others], axis=1)
     train, test = ordered_split(y)
     train, test = train[y[train] != level], test[y[test] != level]
-    classifier = ComponentClassifier(features=features, reference=cycles.channels.index("PS1"), channels=fast)
+    reference = cycles.channels.index("PS1")
+    classifier = (ComponentClassifier(features="transients", reference=reference, **TRANSIENTS)
+                  if features == METHOD_TRANSIENTS else
+                  ComponentClassifier(features=features, reference=reference,
+                                      channels=fast if features == "transients" else None))  # statistics: every channel
     model = OpenSetComponent(classifier).fit(cycles.values[train], y[train], nuisance[train])
     unseen = model.predict(cycles.values[y == level])
     known = model.predict(cycles.values[test])
@@ -60,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     print("{:12s} {:>8s} {:11s} {:>9s} {:>13s} {:>9s}".format(*header))
     for component in rig.components:
         others = [c for c in rig.components if c != component]
-        methods = ("statistics", "transients") if component == "accumulator" else ("statistics",)
+        methods = ("statistics", "transients", METHOD_TRANSIENTS) if component == "accumulator" else ("statistics",)
         for level in rig.label(component).values:
             for features in methods:
                 unseen, false_unknown, accuracy = held_out(cycles, fast, component, others, float(level), features)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
+from sklearn.ensemble import ExtraTreesClassifier
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from test_rig_cycles_method import RIG, write_rig_folder
@@ -19,6 +20,7 @@ from hydrowatch.cycles import ComponentClassifier
 from hydrowatch.cycles.linear import LinearDiscriminant
 from hydrowatch.cycles.openset import OpenSetComponent
 from hydrowatch.cycles.state import from_json_tree, to_json_tree
+from hydrowatch.cycles.trees import CoveredVote, TreeForest
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.rig_cycles import read_rig_data
 from hydrowatch.methods.cycles import CyclesMethod
@@ -94,12 +96,47 @@ def test_step_shares_and_reduced_rank_go_through_json_and_a_state_from_before_th
     old = to_json_tree(plain.to_state())  # what a bundle saved before the two options holds
     for parameters in (old["classifier"], old["classifier_"]["parameters"]):
         del parameters["normalised"], parameters["discriminants"]
-    del old["classifier_"]["priors_"]
+        del parameters["trees"], parameters["tree_weight"], parameters["coverage"]  # format 2 lacked these too
+    del old["classifier_"]["priors_"], old["classifier_"]["vote_"]
     for key in ("normalised", "clear_step", "steps_", "typical_steps_"):
         del old["classifier_"]["transients_"][key]
     loaded = OpenSetComponent.from_state(from_json_tree(json.loads(json.dumps(old)), "old"))
     assert not loaded.classifier_.normalised and loaded.classifier_.discriminants is None
+    assert loaded.classifier_.trees == 0 and loaded.classifier_.vote_ is None
     np.testing.assert_array_equal(loaded.classifier_.predict_proba(values), plain.classifier_.predict_proba(values))
+
+
+def test_the_arrays_of_a_forest_predict_as_scikit_learn_does_and_vote_only_where_covered() -> None:
+    rng = np.random.default_rng(7)
+    level = np.repeat([0.0, 1.0], 60)  # another component's level: 0 and 1
+    state = np.where(level == 0, np.tile(["a", "b"], 60), "a")  # at level 1 the training shows state a only
+    x = rng.normal(0, 1, (120, 4)) + np.column_stack([10 * level, (state == "b") * 2.0, np.zeros(120), level])
+    forest = ExtraTreesClassifier(n_estimators=15, random_state=0, n_jobs=1).fit(x, state)
+    test = rng.normal(0, 1, (40, 4)) + np.column_stack([10 * np.repeat([0.0, 1.0], 20), np.zeros((40, 3))])
+    np.testing.assert_allclose(TreeForest.from_fitted(forest).predict_proba(test), forest.predict_proba(test),
+                               atol=1e-6)
+    vote = CoveredVote.fit(x, state, level[:, None], trees=15, weight=1.25, coverage=10)
+    assert vote.covered[0].tolist() == [True, False]  # level 1 lacks state b
+    covered = vote.covered_cycles(test)
+    assert covered[:20].all() and not covered[20:].any()
+    linear = np.tile([0.9, 0.1], (40, 1))
+    voted = vote.combine(linear, test)
+    np.testing.assert_array_equal(voted[20:], linear[20:])  # not covered: the linear decision alone
+    np.testing.assert_allclose(voted[:20], (linear[:20] + 1.25 * vote.forest.predict_proba(test[:20])) / 2.25)
+    back = CoveredVote.from_state(from_json_tree(json.loads(json.dumps(to_json_tree(vote.to_state()))), "t"))
+    np.testing.assert_array_equal(back.combine(linear, test), voted)
+
+
+def test_a_classifier_with_the_trees_vote_goes_through_json_unchanged(rig_cycles: tuple[Path, object]) -> None:
+    _, cycles = rig_cycles
+    values, valve = cycles.values, np.array([f"{v:g}" for v in cycles.labels["valve"]])  # type: ignore[attr-defined]
+    nuisance = cycles.labels["pump"][:, None]  # type: ignore[attr-defined]
+    fitted = ComponentClassifier(features="statistics", phases=5, trees=10, tree_weight=1.25).fit(
+        values, valve, nuisance)
+    assert fitted.vote_ is not None and fitted.vote_.covered[0].all()  # every pump level has every valve state
+    back = ComponentClassifier.from_state(from_json_tree(json.loads(json.dumps(to_json_tree(fitted.to_state()))), "t"))
+    np.testing.assert_array_equal(back.predict_proba(values), fitted.predict_proba(values))
+    assert back.trees == 10 and back.tree_weight == 1.25 and back.coverage == 10
 
 
 def test_a_cycles_bundle_holds_no_pickle_and_loads_what_it_saved(rig_cycles: tuple[Path, object]) -> None:
@@ -112,7 +149,7 @@ def test_a_cycles_bundle_holds_no_pickle_and_loads_what_it_saved(rig_cycles: tup
     files = sorted(p.name for p in (root / "a" / "cycles").iterdir())
     assert files == ["model.json", "rig.toml"]
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
-    assert stored["format"] == 2 and set(stored["models"]) == {"valve", "pump"}
+    assert stored["format"] == 3 and set(stored["models"]) == {"valve", "pump"}
     loaded = load_bundle(root / "a")
     assert loaded.version == load_bundle(root / "b").version == bundle.version  # the same bytes each save
     values = cycles.values  # type: ignore[attr-defined]
@@ -133,8 +170,8 @@ def test_an_old_pickled_or_broken_cycles_bundle_is_refused_clearly(rig_cycles: t
                                         r"`hydrowatch train --rig tiny-cycles"):
         load_bundle(old)
     stored = json.loads((root / "a" / "cycles" / "model.json").read_text())
-    (old / "cycles" / "model.json").write_text(json.dumps({**stored, "format": 3}))
-    with pytest.raises(DataError, match=r"model.json must be of format 1 or 2. Got 3"):
+    (old / "cycles" / "model.json").write_text(json.dumps({**stored, "format": 4}))
+    with pytest.raises(DataError, match=r"model.json must be of format 1, 2 or 3. Got 4"):
         load_bundle(old)
     stored["models"]["valve"]["thresholds_"]["__array__"]["data"] = "not base64!"
     (old / "cycles" / "model.json").write_text(json.dumps(stored))

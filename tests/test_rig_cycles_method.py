@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from hydrowatch.cli import main
@@ -124,6 +125,25 @@ def test_train_and_score_a_rig_give_a_verdict_per_component(
         assert cycle["components"]["valve"]["truth"] == "unknown" and cycle["components"]["valve"]["novelty"] > 1
     assert scored["summary"]["accuracy"] == {"valve": 1.0, "pump": 1.0}
 
+    # the registered model through mlflow.pyfunc: a DataFrame of cycles (grid samples, a cycle id, two machines)
+    # gives per cycle and component the verdicts `score` gave
+    from hydrowatch.io.rig_cycles import read_rig_data
+    from hydrowatch.rig import load_rig
+
+    rig = load_rig(root / "rig.toml")
+    values = read_rig_data(root / "new", rig).values
+    frame = pd.concat([pd.DataFrame({"machine": "rig1" if i < 2 else "rig2", "cycle": 10 + i,
+                                     **dict(zip(rig.channels.names, cycle))}) for i, cycle in enumerate(values)])
+    model = mlflow.pyfunc.load_model(summary["model_uri"])
+    verdicts = model.predict(frame)
+    assert list(verdicts.columns) == ["machine", "cycle", "component", "state", "probability", "novelty"]
+    assert verdicts["machine"].tolist() == ["rig1"] * 4 + ["rig2"] * 4 and verdicts["cycle"].iloc[-1] == 13
+    for row in verdicts.itertuples():
+        expected = scored["cycles"][row.cycle - 10]["components"][row.component]
+        assert row.state == expected["state"] and row.probability == pytest.approx(expected["probability"])
+    with pytest.raises(DataError, match="machine rig2: cycle 13 must have 20 rows .* Got 19"):
+        model.predict(frame.iloc[:-1])
+
 
 def test_a_rig_folder_scores_without_labels_and_a_recording_is_refused(
     rig_data: dict[str, Path | str], capsys: pytest.CaptureFixture[str]
@@ -157,20 +177,23 @@ BASELINE_HONEST = {"cooler": 1.0, "valve": 1.0, "pump": 1.0, "accumulator": 0.54
 @pytest.mark.skipif(not (UCI / "profile.txt").is_file(), reason=f"the UCI hydraulic data is not at {UCI}")
 def test_the_real_rig_reaches_the_plain_baseline_per_component(tmp_path: Path) -> None:
     from hydrowatch.io.wide import read_cycles
-    from hydrowatch.methods.cycles import CyclesMethod
-    from hydrowatch.rig.description import rig_text
-    from hydrowatch.training.options import TrainingSettings
+    from hydrowatch.methods.cycles.train import component_data, component_states, evaluate_component
+    from hydrowatch.rig import builtin_rig
 
-    rig, text = rig_text("uci-hydraulic")
-    fitted = CyclesMethod.fit_cycles(text, rig, read_cycles(UCI, rig), TrainingSettings(method="cycles"))
-    figures = fitted.evaluation["components"]
+    # the honest split's figures as fit_cycles reports them (evaluate_component), without its final fit on every
+    # cycle (the tiny rig's tests cover that; here it would cost half the test's time)
+    rig = builtin_rig("uci-hydraulic")
+    cycles = read_cycles(UCI, rig)
+    figures = {c: evaluate_component(rig, component_data(rig, cycles.values, cycles.labels, c),
+                                     component_states(rig.label(c))) for c in BASELINE_HONEST}
     for component, baseline in BASELINE_HONEST.items():
         assert figures[component]["accuracy"] >= baseline - 0.005, (component, figures[component])
         assert figures[component]["unknown"] <= 0.01, (component, figures[component])  # known cycles stay known
-    # issue 17: the accumulator's step shares and 2 discriminants read 86.3 % (82.2 % with plain transients); every
+    # issue 17: the accumulator's step shares and 2 discriminants read 86.3 % (82.2 % with plain transients), with the
+    # trees' vote where the training covers the cycle's condition 86.1 % (one cycle less, 99.9 % on random folds); every
     # error is a neighbouring precharge (mostly 130 bar at cooler 100 % read 115 bar), nothing two levels away
     accumulator = figures["accumulator"]
-    assert accumulator["features"] == "transients" and accumulator["accuracy"] == pytest.approx(0.863, abs=0.002)
+    assert accumulator["features"] == "transients" and accumulator["accuracy"] == pytest.approx(0.861, abs=0.002)
     confusion = np.array(accumulator["confusion_matrix"])  # rows 130, 115, 100, 90; columns those, then unknown
     assert confusion[0, 2:].sum() == 0 and confusion[1, 2:].sum() == 0 and confusion[2, 0] == 0
     assert confusion[3, :3].sum() == 0

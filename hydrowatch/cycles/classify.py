@@ -11,7 +11,10 @@ Two feature sets (module :mod:`hydrowatch.cycles.features` and :mod:`hydrowatch.
 - ``entropy``: the study's method without a command (:mod:`hydrowatch.cycles.reference`): per sensor a
   healthy reference model, the relative entropy of each cycle's errors to each condition's.
 
-The decision is LDA's, or (``discriminants``) reduced-rank LDA's in the leading discriminant directions only.
+The decision is LDA's, or (``discriminants``) reduced-rank LDA's in the leading discriminant directions only;
+optionally (``trees``) its probabilities are averaged with those of a forest of extremely randomised trees on the
+plain statistics, weighted ``tree_weight`` to 1, on the cycles whose operating condition the training cycles cover
+(:class:`hydrowatch.cycles.trees.CoveredVote`).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from hydrowatch.cycles.linear import LinearDiscriminant
 from hydrowatch.cycles.reference import CycleReferenceEntropy
 from hydrowatch.cycles.splits import ordered_split
 from hydrowatch.cycles.transients import LoadChangeTransients, NuisanceProjection
+from hydrowatch.cycles.trees import CoveredVote
 from hydrowatch.errors import NotFittedError, ParameterError
 
 FEATURES = ("statistics", "transients", "entropy")
@@ -67,6 +71,17 @@ class ComponentClassifier:
         class centroid there, Mahalanobis, plus the log prior); None: all ``n_classes - 1`` (plain LDA).
         Ordered conditions (an accumulator's precharge levels) lie along the leading directions; the last ones
         separate them by small, condition-sensitive differences that a new operating condition overturns.
+    trees : int, default 0
+        Trees of a forest of extremely randomised trees (scikit-learn ``ExtraTreesClassifier``, seed 0) fitted on
+        the plain statistics of every channel, whose probabilities vote with the linear decision's on the cycles
+        whose operating condition (the other components' levels, read from the cycle) the training cycles cover
+        for every state (:class:`~hydrowatch.cycles.trees.CoveredVote`); 0: no vote. The linear decision
+        extrapolates to conditions its training lacks but is rigid; the forest interpolates the conditions it has
+        seen, the odd cycles among them.
+    tree_weight : float, default 1.0
+        The forest's weight; the vote is ``(p_linear + tree_weight · p_forest) / (1 + tree_weight)``.
+    coverage : int, default 10
+        Training cycles of every state a level of another component needs for the vote to count there.
     """
 
     def __init__(
@@ -82,6 +97,9 @@ class ComponentClassifier:
         healthy: str | float | None = None,
         normalised: bool = False,
         discriminants: int | None = None,
+        trees: int = 0,
+        tree_weight: float = 1.0,
+        coverage: int = 10,
     ) -> None:
         self.features = features
         self.grid_hz = grid_hz
@@ -93,6 +111,9 @@ class ComponentClassifier:
         self.healthy = healthy
         self.normalised = normalised
         self.discriminants = discriminants
+        self.trees = trees
+        self.tree_weight = tree_weight
+        self.coverage = coverage
 
     def _fit_once(
         self, values: np.ndarray, labels: np.ndarray, nuisance: np.ndarray, directions: int
@@ -132,6 +153,9 @@ class ComponentClassifier:
             raise ParameterError(f"features must be one of {list(FEATURES)}. Got {self.features!r}.")
         if self.discriminants is not None and self.discriminants < 1:
             raise ParameterError(f"discriminants must be >= 1 or None. Got {self.discriminants}.")
+        if self.trees < 0 or self.tree_weight < 0 or self.coverage < 1:
+            raise ParameterError(f"trees and tree_weight must be >= 0 and coverage >= 1. Got {self.trees}, "
+                                 f"{self.tree_weight}, {self.coverage}.")
         if nuisance is None:
             nuisance = np.zeros((len(labels), 1))
         directions = self.directions
@@ -144,6 +168,9 @@ class ComponentClassifier:
         projected = self.model_.transform(self._features(values))
         self.centroids_ = np.stack([projected[labels == c].mean(axis=0) for c in self.classes_])
         self.priors_ = np.array([np.mean(labels == c) for c in self.classes_])
+        self.vote_ = None if not self.trees else CoveredVote.fit(
+            self._all_statistics(values), labels, nuisance, trees=self.trees, weight=self.tree_weight,
+            coverage=self.coverage)
         return self
 
     def choose_directions(
@@ -172,6 +199,9 @@ class ComponentClassifier:
         best = max(scores)
         return next(k for k, s in zip(grid, scores, strict=True) if s >= best - 1e-3)
 
+    def _all_statistics(self, values: np.ndarray) -> np.ndarray:
+        return cycle_statistics(values, self.grid_hz, self.phases)
+
     def _statistics(self, values: np.ndarray) -> np.ndarray:
         chosen = values if self.channels is None else values[:, list(self.channels), :]
         return cycle_statistics(chosen, self.grid_hz, self.phases)
@@ -199,21 +229,22 @@ class ComponentClassifier:
 
     def predict(self, values: np.ndarray) -> np.ndarray:
         """The condition of each cycle, shape (n_cycles,)."""
-        x = self._features(values)
-        if self.discriminants is None:
+        if self.discriminants is None and getattr(self, "vote_", None) is None:  # unfitted: _features says so
+            x = self._features(values)
             return np.asarray(self.model_.predict(x))
-        scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
-        return np.asarray(self.classes_[scores.argmax(axis=1)])
+        return np.asarray(self.classes_[self.predict_proba(values).argmax(axis=1)])
 
     def predict_proba(self, values: np.ndarray) -> np.ndarray:
         """Probability of each class (``classes_`` order) per cycle, shape (n_cycles, n_classes); with
-        ``discriminants``, the softmax of the reduced-rank scores."""
+        ``discriminants``, the softmax of the reduced-rank scores; with ``trees``, the vote with the forest's."""
         x = self._features(values)
         if self.discriminants is None:
-            return np.asarray(self.model_.predict_proba(x))
-        scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
-        e = np.exp(scores - scores.max(axis=1, keepdims=True))
-        return np.asarray(e / e.sum(axis=1, keepdims=True))
+            p = np.asarray(self.model_.predict_proba(x))
+        else:
+            scores = self._reduced_scores(self.model_.transform(x), self.centroids_, self.priors_)
+            e = np.exp(scores - scores.max(axis=1, keepdims=True))
+            p = np.asarray(e / e.sum(axis=1, keepdims=True))
+        return p if self.vote_ is None else self.vote_.combine(p, self._all_statistics(values))
 
     def distances(self, values: np.ndarray) -> np.ndarray:
         """Distance of each cycle to each class's training centroid in the discriminant space.
@@ -230,7 +261,8 @@ class ComponentClassifier:
         return np.asarray(np.linalg.norm(projected[:, None, :] - self.centroids_[None, :, :], axis=2))
 
     PARAMETERS: tuple[str, ...] = ("features", "grid_hz", "phases", "reference", "threshold", "directions",
-                                   "channels", "healthy", "normalised", "discriminants")
+                                   "channels", "healthy", "normalised", "discriminants", "trees", "tree_weight",
+                                   "coverage")
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and fitted arrays, no scikit-learn object (:mod:`hydrowatch.cycles.state` stores them)."""
@@ -242,7 +274,8 @@ class ComponentClassifier:
                 "centroids_": self.centroids_, "priors_": self.priors_, "model_": self.model_.to_state(),
                 "transients_": None if self.transients_ is None else self.transients_.to_state(),
                 "projection_": None if self.projection_ is None else self.projection_.to_state(),
-                "entropy_": None if self.entropy_ is None else self.entropy_.to_state()}
+                "entropy_": None if self.entropy_ is None else self.entropy_.to_state(),
+                "vote_": None if self.vote_ is None else self.vote_.to_state()}
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> ComponentClassifier:
@@ -256,4 +289,6 @@ class ComponentClassifier:
         out.projection_ = None if state["projection_"] is None else NuisanceProjection.from_state(
             state["projection_"])
         out.entropy_ = None if state["entropy_"] is None else CycleReferenceEntropy.from_state(state["entropy_"])
+        vote = state.get("vote_")  # a model saved before the trees' vote (format 2) has none
+        out.vote_ = None if vote is None else CoveredVote.from_state(vote)
         return out

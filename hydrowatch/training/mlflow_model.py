@@ -36,6 +36,12 @@ MACHINE_COLUMN = "machine"
 WINDOW_COLUMNS = ("machine", "start_s", "state", "probability")
 """The model's output columns, one row per window: machine ('' without a ``machine`` column), start of the window
 [s], verdict, its probability (NaN for ``invalid`` windows)."""
+CYCLE_COLUMN = "cycle"
+"""Input column of a cycles bundle's model (``train --rig``): the cycle a grid sample belongs to (integer id)."""
+CYCLE_VERDICT_COLUMNS = ("machine", "cycle", "component", "state", "probability", "novelty")
+"""A cycles bundle's model's output columns, one row per cycle and component: machine ('' without a ``machine``
+column), the input's cycle id, the component, its state (or ``unknown``), the state's probability and the open-set
+novelty (above 1: no trained state explains the cycle); :mod:`hydrowatch.training.pyfunc_cycles`."""
 MODEL_REQUIREMENTS = (f"hydrowatch=={__version__}",)
 """What the logged model needs to load (its ``requirements.txt``): hydrowatch, which brings the rest. Given, so
 MLflow does not infer them by loading the model in a subprocess (seconds per run)."""
@@ -46,9 +52,18 @@ ENTRY = "hydrowatch.training.pyfunc_entry"
 def model_signature(bundle: ModelBundle) -> Any:
     """Input, output and params schema of the model of ``bundle``: ``t`` and the channels the bundle reads required,
     the plant's optional channels and ``machine`` optional; output :data:`WINDOW_COLUMNS`; parameter ``smoothing``
-    defaulting to the method's (:func:`~hydrowatch.training.scoring.smoothing_for`)."""
+    defaulting to the method's (:func:`~hydrowatch.training.scoring.smoothing_for`). A cycles bundle (whose method
+    judges whole cycles): :data:`CYCLE_COLUMN` and the rig's channels required, ``machine`` optional; output
+    :data:`CYCLE_VERDICT_COLUMNS`; no parameter."""
     from mlflow.models import ModelSignature
     from mlflow.types import ColSpec, ParamSchema, ParamSpec, Schema
+
+    if bundle.health_method.streams == "cycles":
+        columns: list[Any] = [ColSpec("long", CYCLE_COLUMN), *(ColSpec("double", c) for c in bundle.sensors),
+                              ColSpec("string", MACHINE_COLUMN, required=False)]
+        types = {"cycle": "long", "probability": "double", "novelty": "double"}
+        return ModelSignature(Schema(columns), Schema([ColSpec(types.get(c, "string"), c)
+                                                       for c in CYCLE_VERDICT_COLUMNS]))
 
     needed = ["t", *bundle.health_method.channels]
     inputs: list[Any] = [ColSpec("double", name) for name in needed]

@@ -9,6 +9,9 @@ model that ``hydrowatch train`` logged (:mod:`hydrowatch.training.mlflow_model`,
 optional ``machine`` column holds several machines' samples, each scored on its own (in the order they first
 appear). Parameter ``smoothing`` (pyfunc ``params``): windows each verdict pools, default the method's (parity 12,
 others 1), as ``score --smoothing``. The verdicts are those of ``hydrowatch score`` on the same samples.
+
+A cycles bundle (``train --rig``, a rig's whole cycles) takes a DataFrame of cycles instead and answers one row per
+cycle and component (:mod:`hydrowatch.training.pyfunc_cycles`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from hydrowatch.errors import DataError
 from hydrowatch.io.recordings import recording_from_table
 from hydrowatch.training.bundle import ModelBundle
 from hydrowatch.training.mlflow_model import BUNDLE_ARTIFACT, MACHINE_COLUMN, WINDOW_COLUMNS
+from hydrowatch.training.pyfunc_cycles import score_cycle_frame
 from hydrowatch.training.scoring import score_recording, smoothing_for
 
 
@@ -35,7 +39,10 @@ class BundleModel(PythonModel):
 
     def predict(self, context: PythonModelContext, model_input: pd.DataFrame,
                 params: dict[str, Any] | None = None) -> pd.DataFrame:
-        """Verdicts of every window of ``model_input`` (module docstring); ``params["smoothing"]`` as ``score``."""
+        """Verdicts of every window of ``model_input`` (module docstring); ``params["smoothing"]`` as ``score``.
+        A cycles bundle's: of every cycle and component."""
+        if self.bundle_.health_method.streams == "cycles":
+            return score_cycle_frame(self.bundle_, model_input)
         requested = (params or {}).get("smoothing")
         return score_samples(self.bundle_, model_input, smoothing_for(self.bundle_, requested))
 

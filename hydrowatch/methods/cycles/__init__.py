@@ -45,12 +45,14 @@ if TYPE_CHECKING:
 RIG_FILE, MODEL_FILE = "rig.toml", "model.json"
 LEGACY_MODEL_FILE = "model.pkl"
 """The pickle of scikit-learn objects bundles held before 2026-11-26: refused on loading."""
-FORMAT = 2
+FORMAT = 3
 """Format of ``model.json`` written: per component the open-set classifier's parameters and arrays
 (:mod:`hydrowatch.cycles.state`). 2 (2026-11-26): the transients' step shares and reduced-rank decision
 (``normalised``, ``discriminants``, ``steps_``, ``typical_steps_``, ``priors_``), which a reader of format 1 does not
-know; 1 is still read (its classifiers are plain transients and LDA)."""
-READ_FORMATS = (1, 2)
+know; 3 (2026-11-26, branch rig17b): the trees' vote (``trees``, ``tree_weight``, ``coverage``, ``vote_``), which a
+reader of format 2 would ignore, deciding otherwise than the model was trained to. 1 and 2 are still read (without
+the vote, as trained)."""
+READ_FORMATS = (1, 2, 3)
 
 
 class CyclesMethod(HealthMethod):
@@ -140,7 +142,8 @@ class CyclesMethod(HealthMethod):
             raise DataError(f"a cycles bundle must hold {RIG_FILE} and a readable {MODEL_FILE}. Got: {exc}.",
                             str(folder)) from None
         if not isinstance(stored, dict) or stored.get("format") not in READ_FORMATS:
-            raise DataError(f"{MODEL_FILE} must be of format {' or '.join(map(str, READ_FORMATS))}. Got "
+            raise DataError(f"{MODEL_FILE} must be of format {', '.join(map(str, READ_FORMATS[:-1]))} or "
+                            f"{READ_FORMATS[-1]}. Got "
                             f"{stored.get('format') if isinstance(stored, dict) else type(stored).__name__}.",
                             str(folder / MODEL_FILE))
         source = str(folder / MODEL_FILE)

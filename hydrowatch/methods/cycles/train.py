@@ -24,13 +24,16 @@ from hydrowatch.health.metrics import confusion_matrix, per_class_recall
 from hydrowatch.rig import Label, RigDescription
 from hydrowatch.rig.description import label_text
 
-TRANSIENTS: dict[str, Any] = {"channels": None, "normalised": True, "discriminants": 2}
+TRANSIENTS: dict[str, Any] = {"channels": None, "normalised": True, "discriminants": 2, "trees": 100,
+                              "tree_weight": 1.25}
 """How the ``transients`` features are made and decided (:class:`~hydrowatch.cycles.ComponentClassifier`): every
 channel (the slow ones' values around the changes carry the condition's drift inside the cycle), each clear step
 also as shares of the cycle's own step (cancel the step height and much of the oil temperature), decided in the 2
-leading discriminant directions (reduced-rank LDA). Chosen on the training cycles of the UCI accumulator only
-(docs/rigs.md, issue 17; until 2026-11-26: the channels recorded at >= 10 Hz, plain LDA); for a component of 3
-conditions or fewer 2 directions are all of them."""
+leading discriminant directions (reduced-rank LDA), with the vote of 100 extremely randomised trees on the plain
+statistics weighted 1.25 where the training cycles cover the cycle's operating condition (the other components'
+levels) for every state (:class:`~hydrowatch.cycles.trees.CoveredVote`). Chosen on the training cycles of the UCI
+accumulator only (docs/rigs.md, issue 17; until 2026-11-26: the channels recorded at >= 10 Hz, plain LDA; the vote
+since 2026-11-26, branch rig17b); for a component of 3 conditions or fewer 2 directions are all of them."""
 PHASES = 6
 """Phase means per channel of the ``statistics`` features: 6 (the UCI cycle's), or the largest number below that
 divides a rig's samples per cycle."""
