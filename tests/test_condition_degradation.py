@@ -119,25 +119,6 @@ def test_valve_attribution_blames_the_part_whose_windows_agree_on_one_severity()
         np.sum(np.log(0.9 + 10.0 * r**2))) and np.sum(np.log(0.9 + 10.0 * r**2)) > 0.0
 
 
-def test_pool_misfit_capped_at_the_nominal_fit_ignores_a_few_narrow_wrong_valleys():
-    # a weak relief spring: 50 windows agree on one slow trend (0.04 -> 0.06, c = 5, 7.5x below nominal); in 10
-    # holds where it barely cracks its fit found a narrow valley at 0.26 (c = 25, only 1.75x below nominal). The
-    # coil look-alike explains those holds better but needs a severity that moves with the command elsewhere.
-    x = np.arange(60)
-    shallow = np.isin(x, [10, 11, 25, 26, 27, 40, 41, 50, 51, 52])
-    nominal = np.where(shallow, 0.0014, 0.006)
-    relief = (np.where(shallow, 0.26, 0.04 + 0.0003 * x), np.full(60, 0.0008), np.where(shallow, 25.0, 5.0))
-    coil = (np.where(shallow, 0.06, 0.03 + 0.01 * np.sin(x)), np.where(shallow, 0.0007, 0.0008),
-            np.where(shallow, 0.2, 10.0))
-    # a parabola through the wrong valleys pulls the relief's trend and charges the 50 others
-    assert pool_misfit(*relief) == pytest.approx(-160.0, abs=1.0) and pool_misfit(*coil) == pytest.approx(-404.7,
-                                                                                                          abs=1.0)
-    capped_relief, capped_coil = pool_misfit(*relief, nominal), pool_misfit(*coil, nominal)
-    assert capped_relief == pytest.approx(-422.3, abs=1.0) and capped_coil == pytest.approx(-404.7, abs=1.0)
-    # the holds cost the relief its plateau, log(nominal), and nothing more
-    assert capped_relief == pytest.approx(10 * np.log(0.0014) + 50 * np.log(0.0008), abs=0.5)
-
-
 @pytest.fixture(scope="module")
 def unit_case():
     """A random unit identified from its healthy duty cycle, and windows of it at known severities.

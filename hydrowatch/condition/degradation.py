@@ -27,11 +27,11 @@ separate one-parameter hypotheses of one relation; in a hold at one command seve
 better (a valve_coil hypothesis for a weak relief spring). But a part wears slowly: over the machine's last
 :data:`ATTRIBUTION_WINDOWS` valid windows the worn part's fits agree on one severity trend, while a look-alike needs
 a severity that moves with the command. The hypothesis with the smallest :func:`pool_misfit` (Σ log MSE when the
-pool shares one straight severity trend, capped at the window's nominal MSE) is the worn part and gets its index;
-the others read 0 with an interval that spans 0 and their own one-hypothesis interval (what they would be if they
-were the cause). When the runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part
-wears: from :data:`UNTOLD_LEVEL` on, the blamed part then has no index (NaN) rather than a value on what may be the
-wrong part. load and motor_leak have their own relations and are always estimated.
+pool shares one straight severity trend) is the worn part and gets its index; the others read 0 with an
+interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). When the
+runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part wears: from
+:data:`UNTOLD_LEVEL` on, the blamed part then has no index (NaN) rather than a value on what may be the wrong part.
+load and motor_leak have their own relations and are always estimated.
 
 **Determined or not.** A window whose fit barely depends on a part's severity (a severity :data:`DETERMINED_STEP`
 off would not double its MSE) has no index for that part (NaN), whatever its interval says: the severity search
@@ -78,35 +78,21 @@ duty cycle only pump_leak has such windows (where the pump is far from its limit
 windows): their index was off by 0.15–0.32 on average (the severity search stops in a flat valley), against
 0.005–0.07 for the windows that determine it (seeds 7 and 2027); load, motor_leak, valve_leak, valve_coil and
 relief_spring fits passed the test ≥ 10 times over in every window looked at."""
-NOMINAL_FROM = "valve_leak"
-"""The valve-side hypothesis whose residual is linear in its severity: its fit gives the valve relation's MSE with
-every part as commissioned (severity 0), MSE_min + c·ŝ², exactly (:func:`nominal_valve_mse`): the plateau that a
-one-part fit's MSE(s) cannot exceed where the part does not act (a relief that never cracks)."""
-DEEP = 2.0
-"""A window's fit whose MSE_min is at least this many times below the nominal MSE has a valley deep enough to set
-a pool's severity trend; shallower ones weigh :data:`SHALLOW_WEIGHT` × as much. A weak relief spring (true index
-0.1–0.25) that barely cracks in a hold has valleys 1.3–2× below nominal at severities 0.15–0.27 while its deep
-windows agree on 0.03–0.06 (seed 2027, unit 4): with their full weight c / MSE_min (c = 20–30, the largest in the
-pool) they set the trend, and the worn relief lost its attribution to the coil."""
-SHALLOW_WEIGHT = 1e-3
-"""Relative weight in the trend of a window whose valley is not :data:`DEEP` (not 0: a pool of shallow windows
-only, a part barely worn, still has a trend)."""
 ATTRIBUTION_MARGIN = 3.0
 """Pool misfit (nats, over the pool's windows) by which the blamed valve-side part must beat the runner-up for the
 pool to tell them apart. While a relief spring barely cracks (true index 0.1–0.25) it and the coil explain the duty
 cycle equally: the blame flipped between them with gaps of about 1 (pool of 60 windows), so a third to all of such
 windows of a worn relief spring blamed the coil (and of a worn coil, the relief), reading the right value on the
-wrong part. Where the worn part lost its pool on the tuning units (seeds 7 and 2042, 6 units) the gap was at most
-2.5 on valve_coil paths (99th percentile 2.3), 4.0 on valve_leak (3.9), 8.1 on relief_spring (5.7) and 7.1 on
-pump_leak (6.5, early wear); past true index 0.3 the own part won by more than 3 in 97–100 % of the windows."""
+wrong part. Where the worn part lost its pool on the tuning units (seeds 7 and 2042, 6 units) the gap's median /
+90th percentile was 0.5 / 1.5 on valve_coil paths, 0.4 / 1.3 on relief_spring, 0.2 / 0.8 on valve_leak and 0.8 /
+2.3 on pump_leak (early wear); past true index 0.3 the own part won by more than 3 in 97–100 % of the windows. A
+worn part blamed on a look-alike by more than the margin stays blamed (seed 2027, unit 4: a relief spring, 9 % of
+its windows)."""
 UNTOLD_LEVEL = 0.1
 """Index from which a valve-side part blamed without :data:`ATTRIBUTION_MARGIN` has no index (NaN, "which part
 wears is not told"); below it the blamed part keeps its value: which part wears does not matter to a plan there (a
 fifth of the warning, the forecast's ``MIN_RISE``), and the valve-side look-alikes of a healthy machine are never
 told apart."""
-TREND_PASSES = 2
-"""Passes of :func:`pool_misfit`'s trend that drop the windows whose quadratic MSE at the trend is above their
-plateau (their fit found another valley, or none): they pay the plateau and no longer pull the trend."""
 INDEX_CAP = 10.0
 """Interval bounds are clipped to ±INDEX_CAP: a bound there means the window does not determine the part (a flat
 fit, such as relief_spring while the relief never cracks)."""
@@ -171,8 +157,7 @@ def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.nd
         np.nan_to_num(hi, nan=INDEX_CAP), -INDEX_CAP, INDEX_CAP)
 
 
-def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
-                ceiling: np.ndarray | None = None) -> np.ndarray:
+def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) -> np.ndarray:
     """Σ log MSE of one valve-side hypothesis over a pool of consecutive valid windows that share one severity trend.
 
     Each window's free fit gives MSE(s) ≈ MSE_min + c·(s − ŝ)² (:class:`~hydrowatch.condition.estimates.
@@ -181,49 +166,24 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
     the misfit is Σ log(MSE_min + c·(ŝ − trend)²). A look-alike hypothesis explains each window on its own, as well
     as the worn part or better, but only with a severity that moves with the command (docs/degradation.md).
 
-    With ``ceiling`` (the window's MSE with every part as commissioned, :func:`nominal_valve_mse`) the quadratic is
-    capped there: a one-part fit's MSE(s) is a narrow valley on a plateau (a relief spring that cracks only near
-    one severity in a hold), and a parabola through the valley would charge a window far from it many times the
-    plateau. The trend is then robust: windows whose valley is shallower than :data:`DEEP` hardly set it, and
-    those capped at the trend stop pulling it (:data:`TREND_PASSES`).
-
     Parameters
     ----------
     severity, mse, curvature : ndarray, shape (..., L)
         ŝ, MSE_min [(L/min)²] and c of L consecutive valid windows in time order (last axis).
-    ceiling : ndarray, shape (..., L), optional
-        The windows' MSE with every valve-side part as commissioned [(L/min)²]; None: no cap (the quadratic).
 
     Returns
     -------
     ndarray, shape (...,)
     """
     s, m, c = np.asarray(severity, dtype=np.float64), np.maximum(mse, 1e-300), np.maximum(curvature, 0.0)
-    top = np.inf if ceiling is None else np.maximum(ceiling, m)
-    w = c / m + 1e-12  # a window that does not determine the part hardly moves the trend
-    if ceiling is not None:
-        w = np.where(top >= DEEP * m, w, SHALLOW_WEIGHT * w)
-    for _ in range(TREND_PASSES):
-        at_trend = m + c * (s - _trend(s, w)) ** 2
-        w = np.where(at_trend > top, 1e-12, w)  # on its plateau at the trend: no pull on it
-    return np.log(np.minimum(m + c * (s - _trend(s, w)) ** 2, top)).sum(axis=-1)
-
-
-def _trend(s: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted least-squares straight line of ``s`` (..., L) against its place on the last axis, weights ``w``."""
     x = np.arange(s.shape[-1], dtype=np.float64)
+    w = c / m + 1e-12  # a window that does not determine the part hardly moves the trend
     total = w.sum(axis=-1, keepdims=True)
     dx = x - (w * x).sum(axis=-1, keepdims=True) / total
     level = (w * s).sum(axis=-1, keepdims=True) / total
     sxx = (w * dx**2).sum(axis=-1, keepdims=True)
-    return np.asarray(level + (w * dx * (s - level)).sum(axis=-1, keepdims=True) / np.maximum(sxx, 1e-300) * dx)
-
-
-
-def nominal_valve_mse(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) -> np.ndarray:
-    """The valve relation's mean squared residual with every valve-side part as commissioned, per window, from the
-    :data:`NOMINAL_FROM` fit (ŝ, MSE_min, c, any shape): MSE_min + c·ŝ²."""
-    return np.asarray(mse, dtype=np.float64) + np.maximum(curvature, 0.0) * np.asarray(severity, dtype=np.float64) ** 2
+    slope = (w * dx * (s - level)).sum(axis=-1, keepdims=True) / np.maximum(sxx, 1e-300)
+    return np.log(m + c * (s - level - slope * dx) ** 2).sum(axis=-1)
 
 
 def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
@@ -232,8 +192,7 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
     """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
 
     The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
-    it (one machine's consecutive windows; fewer at the start), capped at the windows' nominal MSE
-    (:func:`nominal_valve_mse` of the :data:`NOMINAL_FROM` fit); −1 for invalid windows.
+    it (one machine's consecutive windows; fewer at the start); −1 for invalid windows.
 
     Parameters
     ----------
@@ -246,10 +205,8 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
     """
     m = int(valid.sum())
     misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
-    ceiling = nominal_valve_mse(*(np.asarray(a[NOMINAL_FROM], dtype=np.float64)[valid]
-                                  for a in (severity, mse, curvature)))
     for j, fault in enumerate(parity.VALVE_HYPOTHESES):
-        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)] + [ceiling]
+        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)]
         for k in range(min(pool - 1, m)):  # the first windows: the pool so far
             misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
         if m >= pool:
@@ -400,8 +357,7 @@ class DegradationStream:
         if "valve" in f.relations_:
             self._fits.append(np.array([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES]))
             ring = np.stack(self._fits, axis=-1)  # (hypothesis, ŝ / MSE / c, window)
-            ceiling = nominal_valve_mse(*ring[parity.VALVE_HYPOTHESES.index(NOMINAL_FROM)])
-            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], ceiling)
+            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
             blamed, ranked = np.array([int(np.argmin(misfit))]), np.sort(misfit)
             gap = np.array([ranked[1] - ranked[0]])
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))

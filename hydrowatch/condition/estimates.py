@@ -38,13 +38,6 @@ oil's range, :mod:`hydrowatch.condition.oil`)."""
 LPM_TO_M3S = 1.0 / M3S_TO_LPM
 REFIT_GRID = 19
 """Coarse-grid points of the second valve search for fits that end on a search limit (:func:`parity_estimates`)."""
-FINE_GRID = 145
-"""Coarse-grid points of a third search, for relief_spring fits still on a search limit after the second (0.01
-apart): in a hold where a weak relief spring (true index 0.05–0.25) barely cracks, its valley is about 0.02 wide,
-and 19 points found none of 46 such windows of a tuning unit (seed 2027, unit 4), 145 points all of them; the
-valve_coil hypothesis then explained those windows with half the MSE and was blamed for the relief's wear."""
-FINE_HYPOTHESES: tuple[str, ...] = ("relief_spring",)
-"""Valve-side hypotheses searched a third time (:data:`FINE_GRID`)."""
 REFIT_EXCESS = 1.1
 """A fit on a search limit is searched again only when its MSE exceeds the best valve hypothesis's by this factor
 (on a plateau every hypothesis that explains the window is as good: nothing to find)."""
@@ -213,8 +206,7 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
 def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severity: np.ndarray, mse: np.ndarray,
                      curvature: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Search again, on a :data:`REFIT_GRID`-point coarse grid, the windows whose fit ended on a search limit
-    more than :data:`REFIT_EXCESS` × worse than the best valve hypothesis ``best`` (m,); a
-    :data:`FINE_HYPOTHESES` fit still there is searched a third time on :data:`FINE_GRID` points.
+    more than :data:`REFIT_EXCESS` × worse than the best valve hypothesis ``best`` (m,).
 
     Near pump saturation the relief barely cracks: a relief_spring (or valve_coil) residual is
     flat over every severity that keeps the relief shut and has a narrow valley (about 0.1 wide)
@@ -232,12 +224,10 @@ def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severit
         return severity, mse, curvature
     lo, hi = parity.SEVERITY_LIMITS[fault]
     edge = 1e-9 * (hi - lo)
-    for grid in (REFIT_GRID, FINE_GRID) if fault in FINE_HYPOTHESES else (REFIT_GRID,):
-        again = np.flatnonzero(((severity <= lo + edge) | (severity >= hi - edge)) & (mse > REFIT_EXCESS * best))
-        if not again.size:
-            break
+    again = np.flatnonzero(((severity <= lo + edge) | (severity >= hi - edge)) & (mse > REFIT_EXCESS * best))
+    if again.size:
         s2, m2, c2 = parity.valve_fit(sig.flow[again], sig.spool[again], sig.load_pressure[again], p, fault,
-                                      grid=grid, leak=sig.leak[again])
+                                      grid=REFIT_GRID, leak=sig.leak[again])
         better = m2 < mse[again]
         idx = again[better]
         severity, mse, curvature = severity.copy(), mse.copy(), curvature.copy()
