@@ -46,6 +46,25 @@ def test_exponential_wear_is_fitted_as_exponential():
     assert linear_guess > 2 * truth
 
 
+def test_accelerating_wear_between_growth_grid_points_is_forecast_within_13_percent():
+    # a path accelerating 10x over 2400 s to index 1.3 (the benchmark's exp shape), its index first seen at 0.02 to
+    # 0.08 (a part whose early wear the window does not determine), forecast when it passes 0.5: γ·span 1.2–1.4
+    # lies between the old growth grid's 1.0 and 1.5 (17 % late from 0.035 with that grid)
+    growth, duration = np.log(10.0), 2400.0
+    t = np.arange(0.0, duration, HOP)
+    truth = 1.3 * np.expm1(growth * t / duration) / np.expm1(growth)
+    now = int(np.argmax(truth >= 0.5))
+    remaining = duration * np.log1p(np.expm1(growth) / 1.3) / growth - t[now]
+    errors = []
+    for first in (0.02, 0.035, 0.05, 0.08):
+        v = _noisy(truth, 5, sigma=0.01)
+        v[truth < first] = np.nan
+        f = forecast_alert(t[: now + 1], v[: now + 1])
+        assert f.model == "exp" and f.ci95[0] <= remaining <= f.ci95[1], first
+        errors.append(abs(f.alert_in_s - remaining) / remaining)
+    assert max(errors) < 0.13 and np.median(errors) < 0.08
+
+
 def test_a_replaced_part_starts_a_new_trend():
     t = np.arange(0.0, 4000.0, HOP)
     old = 0.9 * t / 2000.0

@@ -28,8 +28,10 @@ better (a valve_coil hypothesis for a weak relief spring). But a part wears slow
 :data:`ATTRIBUTION_WINDOWS` valid windows the worn part's fits agree on one severity trend, while a look-alike needs
 a severity that moves with the command. The hypothesis with the smallest :func:`pool_misfit` (Σ log MSE when the
 pool shares one straight severity trend) is the worn part and gets its index; the others read 0 with an
-interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). load and
-motor_leak have their own relations and are always estimated.
+interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). When the
+runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part wears: from
+:data:`UNTOLD_LEVEL` on, the blamed part then has no index (NaN) rather than a value on what may be the wrong part.
+load and motor_leak have their own relations and are always estimated.
 
 **Determined or not.** A window whose fit barely depends on a part's severity (a severity :data:`DETERMINED_STEP`
 off would not double its MSE) has no index for that part (NaN), whatever its interval says: the severity search
@@ -76,6 +78,21 @@ duty cycle only pump_leak has such windows (where the pump is far from its limit
 windows): their index was off by 0.15–0.32 on average (the severity search stops in a flat valley), against
 0.005–0.07 for the windows that determine it (seeds 7 and 2027); load, motor_leak, valve_leak, valve_coil and
 relief_spring fits passed the test ≥ 10 times over in every window looked at."""
+ATTRIBUTION_MARGIN = 3.0
+"""Pool misfit (nats, over the pool's windows) by which the blamed valve-side part must beat the runner-up for the
+pool to tell them apart. While a relief spring barely cracks (true index 0.1–0.25) it and the coil explain the duty
+cycle equally: the blame flipped between them with gaps of about 1 (pool of 60 windows), so a third to all of such
+windows of a worn relief spring blamed the coil (and of a worn coil, the relief), reading the right value on the
+wrong part. Where the worn part lost its pool on the tuning units (seeds 7 and 2042, 6 units) the gap's median /
+90th percentile was 0.5 / 1.5 on valve_coil paths, 0.4 / 1.3 on relief_spring, 0.2 / 0.8 on valve_leak and 0.8 /
+2.3 on pump_leak (early wear); past true index 0.3 the own part won by more than 3 in 97–100 % of the windows. A
+worn part blamed on a look-alike by more than the margin stays blamed (seed 2027, unit 4: a relief spring, 9 % of
+its windows)."""
+UNTOLD_LEVEL = 0.1
+"""Index from which a valve-side part blamed without :data:`ATTRIBUTION_MARGIN` has no index (NaN, "which part
+wears is not told"); below it the blamed part keeps its value: which part wears does not matter to a plan there (a
+fifth of the warning, the forecast's ``MIN_RISE``), and the valve-side look-alikes of a healthy machine are never
+told apart."""
 INDEX_CAP = 10.0
 """Interval bounds are clipped to ±INDEX_CAP: a bound there means the window does not determine the part (a flat
 fit, such as relief_spring while the relief never cracks)."""
@@ -171,7 +188,7 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) ->
 
 def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
                            curvature: Mapping[str, np.ndarray], valid: np.ndarray,
-                           pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:
+                           pool: int = ATTRIBUTION_WINDOWS, with_gap: bool = False) -> Any:
     """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
 
     The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
@@ -183,6 +200,8 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
         Each valve hypothesis's free fit per window: ŝ, minimum MSE [(L/min)²], c (NaN where invalid).
     valid : ndarray of bool, shape (n,)
     pool : int, default :data:`ATTRIBUTION_WINDOWS`
+    with_gap : bool, default False
+        Also return the runner-up's misfit minus the best's per window (inf where invalid): ``(blamed, gap)``.
     """
     m = int(valid.sum())
     misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
@@ -192,9 +211,12 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
             misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
         if m >= pool:
             misfit[pool - 1:, j] = pool_misfit(*(sliding_window_view(a, pool) for a in fit))
-    out = np.full(valid.size, -1, dtype=np.int64)
+    out, gap = np.full(valid.size, -1, dtype=np.int64), np.full(valid.size, np.inf)
     out[valid] = np.argmin(misfit, axis=1)
-    return out
+    if misfit.shape[1] > 1:
+        ranked = np.sort(misfit, axis=1)
+        gap[valid] = ranked[:, 1] - ranked[:, 0]
+    return (out, gap) if with_gap else out
 
 
 @dataclass(frozen=True)
@@ -233,7 +255,7 @@ class Degradation:
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
                        relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
-                       blamed: np.ndarray | None = None) -> Degradation:
+                       blamed: np.ndarray | None = None, gap: np.ndarray | None = None) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -252,6 +274,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         Valid windows deciding the valve-side part (:func:`attributed_valve_fault`).
     blamed : ndarray of int, shape (n,), optional
         The valve-side part of each window when the caller has chosen it (:class:`DegradationStream`).
+    gap : ndarray, shape (n,), optional
+        With ``blamed``: the runner-up's pool misfit minus the blamed part's (None: every window told apart).
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
@@ -260,8 +284,9 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if blamed is None:
         severity, misfit, curvature = ({f: _spread(a[f], valid) for f in parity.VALVE_HYPOTHESES}
                                        for a in (estimates.severity, mse, estimates.curvature))
-        blamed = (attributed_valve_fault(severity, misfit, curvature, valid, pool)
-                  if "valve" in relations and valid.any() else np.full(n, -1))
+        blamed, gap = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_gap=True)
+                       if "valve" in relations and valid.any() else (np.full(n, -1), None))
+    told = np.ones(n, dtype=bool) if gap is None else np.asarray(gap) >= ATTRIBUTION_MARGIN
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
@@ -274,10 +299,11 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
             mine = blamed[valid] == parity.VALVE_HYPOTHESES.index(fault)
             lo, hi = np.where(mine, lo, np.minimum(0.0, lo)), np.where(mine, hi, np.maximum(0.0, hi))
             v = np.where(mine, v, 0.0)
+            mine_untold = mine & ~told[valid] & (v >= UNTOLD_LEVEL)  # worn, but which part the pool cannot tell
         else:
-            mine = np.ones(v.size, dtype=bool)
-        unknown = mine & ~determined  # the part's own fit does not determine it: no index
-        measured[fault][valid] = mine & determined
+            mine, mine_untold = np.ones(v.size, dtype=bool), np.zeros(v.size, dtype=bool)
+        unknown = mine & (~determined | mine_untold)  # the part's own fit does not determine it: no index
+        measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
     return Degradation(value, low, high, measured)
 
@@ -327,12 +353,14 @@ class DegradationStream:
         :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
         only (``measured``: :meth:`Degradation.window`)."""
         f = self.features
-        blamed = np.array([-1])
+        blamed, gap = np.array([-1]), None
         if "valve" in f.relations_:
             self._fits.append(np.array([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES]))
             ring = np.stack(self._fits, axis=-1)  # (hypothesis, ŝ / MSE / c, window)
-            blamed = np.array([int(np.argmin(pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])))])
+            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
+            blamed, ranked = np.array([int(np.argmin(misfit))]), np.sort(misfit)
+            gap = np.array([ranked[1] - ranked[0]])
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed)
+                                   f.relations_, self.pool, blamed, gap)
         return found.window(0, measured=True)
