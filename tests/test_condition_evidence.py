@@ -15,6 +15,7 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
+from hydrowatch.condition.model import POOLED_EXCESS
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 
@@ -71,15 +72,18 @@ def test_pooling_resolves_look_alike_holds(trained):
     assert acc[1] < 0.85 and acc[6] > 0.9  # 81 % → 93 %: only the first windows, all near 2 V, stay ambiguous
 
 
-def test_an_unseen_look_alike_is_rejected_per_machine(trained):
+def test_an_unseen_fault_is_rejected_per_machine(trained):
     train, _ = trained
     model = ConditionModel().fit({s: w for s, w in train.items() if not s.startswith("relief_spring")})
-    test = windows_of(("relief_spring_alert", "valve_coil_alert", "healthy"), duty_cycle(120, (0, 4), seed=3), seed=4)
+    test = windows_of(("pump_leak_alert", "valve_leak_alert", "valve_coil_alert", "healthy"),
+                      duty_cycle(120, (0, 4), seed=3), seed=4)
     unknown = {n: {s: np.mean(model.predict(w, smoothing=n) == "unknown") for s, w in test.items()} for n in (1, 12)}
-    # 4 % → 25 % (75 % before the open set tolerated a 15 % severity spread over the pool, evidence.py: the price
-    # of healthy and pump-leak machines of other units no longer reading unknown when pooled; on the unit
-    # population the unseen faults pooled over 12 windows read unknown 97.5 % instead of 98.2 %, median unit).
-    assert unknown[1]["relief_spring_alert"] < 0.1 < 0.2 < unknown[12]["relief_spring_alert"]
+    # Alerts of faults trained only at their warning level: 37.5 / 66.7 % per window, 95.8 / 100 % pooled over 12
+    # windows; known states never. (An unseen relief_spring_alert, valve_coil_alert's look-alike on this duty cycle,
+    # read unknown in 25 % of pooled windows with the earlier pooled limit 1.0 and in none with POOLED_EXCESS 2.0,
+    # the price of known states of other units and days no longer reading unknown pooled: docs/unseen-units.md.)
+    assert unknown[1]["pump_leak_alert"] < 0.5 < 0.9 < unknown[12]["pump_leak_alert"]
+    assert unknown[1]["valve_leak_alert"] < 0.8 < 0.95 < unknown[12]["valve_leak_alert"]
     assert unknown[12]["valve_coil_alert"] == 0.0 and unknown[12]["healthy"] == 0.0
 
 
@@ -105,7 +109,7 @@ def test_pooled_excess_is_saved_and_older_directories_load(trained, tmp_path):
     model.save(tmp_path / "m")
     assert ConditionModel.load(tmp_path / "m").pooled_excess_ == 0.5
     (tmp_path / "m" / "condition_model.json").unlink()  # as round 2 wrote it
-    assert ConditionModel.load(tmp_path / "m").pooled_excess_ == 1.0
+    assert ConditionModel.load(tmp_path / "m").pooled_excess_ == POOLED_EXCESS
     (tmp_path / "m" / "condition_model.json").write_text(json.dumps({"format": 99}))
     with pytest.raises(DataError, match="format"):
         ConditionModel.load(tmp_path / "m")
