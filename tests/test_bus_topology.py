@@ -151,7 +151,8 @@ def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_regis
 
     def load(model: str, tracking: str | None = None) -> argparse.Namespace:
         loaded.append(model)
-        return argparse.Namespace(version=f"hydrowatch/v{len(loaded)}")
+        return argparse.Namespace(version=f"hydrowatch/v{len(loaded)}", method="parity",  # a plant bundle
+                                  health_method=argparse.Namespace(channels=["voltage", "flow"]))
 
     monkeypatch.setattr(tracking_module, "resolve_version", resolve)
     monkeypatch.setattr(bundle_module, "load_bundle", load)

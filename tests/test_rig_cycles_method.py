@@ -104,6 +104,10 @@ def test_train_and_score_a_rig_give_a_verdict_per_component(
     import mlflow
 
     mlflow.set_tracking_uri(str(rig_data["uri"]))
+    # registered under the rig's own name (issue 17): the plant's hydrowatch@champion is never created nor moved
+    assert summary["model_uri"] == "models:/hydrowatch-tiny-cycles@champion"
+    registered = {m.name for m in mlflow.MlflowClient().search_registered_models()}
+    assert "hydrowatch-tiny-cycles" in registered and "hydrowatch" not in registered
     run = mlflow.get_run(summary["run_id"])
     assert run.data.params["rig"] == "tiny-cycles" and run.data.params["cycles"] == "120"
     assert run.data.metrics["accuracy.valve"] == summary["components"]["valve"]["accuracy"]
@@ -143,6 +147,23 @@ def test_train_and_score_a_rig_give_a_verdict_per_component(
         assert row.state == expected["state"] and row.probability == pytest.approx(expected["probability"])
     with pytest.raises(DataError, match="machine rig2: cycle 13 must have 20 rows .* Got 19"):
         model.predict(frame.iloc[:-1])
+
+
+def test_mlflow_names_come_from_the_rig_unless_given() -> None:
+    """One rule for train, trainer, demo and the scorer (issue 17): the plant's ``hydrowatch``, a rig's
+    ``hydrowatch-<rig>``; a flag given wins; ``--no-register`` registers nothing."""
+    import argparse
+
+    from hydrowatch.training.options import add_tracking_arguments, tracking_names
+
+    parser = argparse.ArgumentParser()
+    add_tracking_arguments(parser)
+    assert tracking_names(parser.parse_args([])) == ("hydrowatch", "hydrowatch")
+    assert tracking_names(parser.parse_args([]), "uci-hydraulic") == ("hydrowatch-uci-hydraulic",
+                                                                      "hydrowatch-uci-hydraulic")
+    given = parser.parse_args(["--model-name", "hydrowatch", "--experiment", "lab"])
+    assert tracking_names(given, "uci-hydraulic") == ("lab", "hydrowatch")
+    assert tracking_names(parser.parse_args(["--no-register"]), "uci-hydraulic")[1] is None
 
 
 def test_a_rig_folder_scores_without_labels_and_a_recording_is_refused(

@@ -16,6 +16,7 @@ import pytest
 from test_rig_cycles_method import RIG, write_rig_folder
 
 from hydrowatch.bus import BusSettings, Publisher, Subscriber, free_port, key, open_session, wait_alive
+from hydrowatch.errors import DataError
 from hydrowatch.io.codec import encode_batch
 from hydrowatch.io.mcap_io import iter_messages
 from hydrowatch.io.rig_cycles import (
@@ -123,6 +124,35 @@ def test_an_imported_rig_file_replayed_on_the_bus_is_judged(trained: Path) -> No
     assert sorted(r["cycle"] for r in got if r["component"] == "valve") == list(range(6))
     assert [r["state"] for r in sorted(got, key=lambda r: r["cycle"]) if r["component"] == "valve"] == [
         "100", "80", "unknown", "unknown", "100", "80"]
+
+
+def test_a_scorer_refuses_a_model_made_for_another_rig_naming_the_model_and_what_differs(trained: Path) -> None:
+    """Issue 17: a plant scorer never silently serves a rig's model, nor a rig's scorer the plant's (at start: an
+    error; on a followed alias: the version refused, the model in use kept)."""
+    import argparse
+
+    from services.scorer import _Model, add_arguments, served_rig
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    plant_bundle = Path(__file__).parent / "bundles" / "main-68a3627" / "parity"
+    # the plant's scorer by default: its registered name, and the plant served
+    default = parser.parse_args([])
+    assert served_rig(default).name == "plant" and default.model == "models:/hydrowatch@champion"
+    as_rig = parser.parse_args(["--rig", str(trained / "rig.toml")])
+    assert served_rig(as_rig).name == "tiny-cycles" and as_rig.model == "models:/hydrowatch-tiny-cycles@champion"
+
+    plant = parser.parse_args(["--rig", "plant", "--model", str(trained / "model")])
+    with pytest.raises(DataError, match=r"model/?: the model must be made for rig 'plant'.* cycles bundle .* of rig "
+                                        r"'tiny-cycles': its rig is 'tiny-cycles', not 'plant'; it reads channels "
+                                        r"\['P', 'Q', 'T'\] that 'plant' does not have"):
+        _Model(plant, served_rig(plant))
+    # --model alone serves the model's own rig; a followed version made for the plant is refused, the model kept
+    rig = parser.parse_args(["--model", str(trained / "model")])
+    model = _Model(rig, served_rig(rig))
+    in_use = model.bundle.version
+    assert model.served.name == "tiny-cycles" and not model.take(load_bundle(plant_bundle))
+    assert not model.moved() and model.bundle.version == in_use
 
 
 def test_the_recorder_records_cycles_their_verdicts_and_expected_sensors_when_asked(trained: Path) -> None:

@@ -9,11 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from hydrowatch.errors import DataError
 from hydrowatch.io.rig_cycles import read_rig_data
 from hydrowatch.io.wide import Cycles
-from hydrowatch.rig import BUILTIN, RigDescription, builtin_rig, load_rig
-from hydrowatch.rig.plant import plant_rig
+from hydrowatch.rig import BUILTIN, RigDescription
+from hydrowatch.rig.plant import any_rig
 
 NAME = "rig"
 HELP = "check a rig description (a .toml file, 'plant' or a shipped name) and, with --data, import and count its data"
@@ -25,17 +24,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--data", type=Path, help="the rig's data: a folder of per-cycle files (wide) or a CSV/Parquet table (long)"
     )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-
-
-def resolve(rig: str) -> RigDescription:
-    """The description named on the command line: ``plant``, a shipped name, or a .toml path."""
-    if rig == "plant":
-        return plant_rig()
-    if rig in BUILTIN:
-        return builtin_rig(rig)
-    if not rig.endswith(".toml"):
-        raise DataError(f"rig must be a .toml file, 'plant' or one of {list(BUILTIN)}. Got {rig!r}.")
-    return load_rig(rig)
 
 
 def summary(rig: RigDescription, data: Cycles | None) -> dict[str, Any]:
@@ -95,7 +83,7 @@ def _lines(s: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    rig = resolve(args.rig)
+    rig = any_rig(args.rig)
     data = None
     if args.data is not None:
         data = read_rig_data(args.data, rig)

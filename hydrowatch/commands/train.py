@@ -16,7 +16,12 @@ import argparse
 import json
 from pathlib import Path
 
-from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_list_from_args
+from hydrowatch.training.options import (
+    add_tracking_arguments,
+    add_training_arguments,
+    settings_list_from_args,
+    tracking_names,
+)
 
 NAME = "train"
 HELP = "train the health model (parity, entropy or both) from labelled recordings; log to MLflow and register it"
@@ -48,10 +53,10 @@ def run(args: argparse.Namespace) -> int:
     as_json, tracking_uri, runs_url = json_output(args.json), "", None
     if args.rig is not None:
         return _train_rig(args, as_json)
+    experiment, model_name = tracking_names(args)
     for summary in train_each(
         args.data, args.out, settings_list_from_args(args), report_dir=args.report, tracking=args.tracking_uri,
-        experiment=args.experiment, model_name=None if args.no_register else args.model_name, alias=args.alias,
-        check_seconds=args.check_seconds,
+        experiment=experiment, model_name=model_name, alias=args.alias, check_seconds=args.check_seconds,
     ):
         print(json.dumps(summary) if as_json else train_text(summary), flush=True)
         tracking_uri, runs_url = summary["tracking_uri"], summary.get("runs_url")
@@ -61,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _train_rig(args: argparse.Namespace, as_json: bool) -> int:
-    """``--rig``: the cycles method on the rig's cycles (``--method`` left at its default or ``cycles``)."""
+    """``--rig``: the cycles method on the rig's cycles (``--method`` left at its default or ``cycles``), registered
+    as ``hydrowatch-<rig>`` and logged to that experiment unless ``--model-name``/``--experiment`` say otherwise
+    (:func:`~hydrowatch.training.options.mlflow_name`)."""
     from hydrowatch.errors import ParameterError
     from hydrowatch.report.console import train_next
     from hydrowatch.training.options import DEFAULT_CLI_METHOD, settings_from_args
@@ -72,7 +79,7 @@ def _train_rig(args: argparse.Namespace, as_json: bool) -> int:
     args.method = "cycles"
     _, summary = train_rig_and_track(
         args.rig, args.data, args.out, settings_from_args(args), tracking=args.tracking_uri,
-        experiment=args.experiment, model_name=None if args.no_register else args.model_name, alias=args.alias,
+        experiment=args.experiment, model_name=args.model_name, register=not args.no_register, alias=args.alias,
         report_dir=args.report)
     if as_json:
         print(json.dumps(summary), flush=True)

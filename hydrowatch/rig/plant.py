@@ -9,9 +9,13 @@ default description: what ``hydrowatch import/train/score`` assume when no rig i
 from __future__ import annotations
 
 from hydrowatch.channels import LABEL, PLANT, TIME
+from hydrowatch.errors import DataError
 from hydrowatch.plant.faults import EXTENDED_STATES, HEALTHY
 from hydrowatch.recording import SAMPLE_RATE_HZ
-from hydrowatch.rig.description import Label, RigDescription, Sampling, Window
+from hydrowatch.rig.description import BUILTIN, Label, RigDescription, Sampling, Window, builtin_rig, load_rig
+
+PLANT_RIG = "plant"
+"""Name of the plant's description (``--rig plant``; the rig of every bundle of a method other than ``cycles``)."""
 
 WINDOW_S = 5.0
 """Window of the plant, s: 1000 samples at 200 Hz, the classifier window of
@@ -26,7 +30,7 @@ def plant_rig() -> RigDescription:
     (``healthy`` or ``<fault>_<warning|alert>``).
     """
     return RigDescription(
-        name="plant",
+        name=PLANT_RIG,
         channels=PLANT,
         sampling={c.name: Sampling(SAMPLE_RATE_HZ, c.name) for c in PLANT},
         window=Window("fixed", WINDOW_S, WINDOW_S, SAMPLE_RATE_HZ),
@@ -35,3 +39,20 @@ def plant_rig() -> RigDescription:
         time_column=TIME,
         description="simulated servo-valve controlled hydrostatic transmission (hydrowatch's own plant)",
     )
+
+
+def any_rig(rig: str) -> RigDescription:
+    """The description named on a command line: ``plant`` (:func:`plant_rig`), a shipped name or a .toml path.
+
+    Raises
+    ------
+    DataError
+        Naming what is accepted, for anything else; as :func:`~hydrowatch.rig.load_rig` for a bad file.
+    """
+    if rig == PLANT_RIG:
+        return plant_rig()
+    if rig in BUILTIN:
+        return builtin_rig(rig)
+    if not rig.endswith(".toml"):
+        raise DataError(f"rig must be a .toml file, {PLANT_RIG!r} or one of {list(BUILTIN)}. Got {rig!r}.")
+    return load_rig(rig)

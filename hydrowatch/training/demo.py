@@ -35,7 +35,7 @@ from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, simulate
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from hydrowatch.report.fleet_table import FleetTable, FleetWear, forecast_parts, verdict_rows
 from hydrowatch.results import TrainingResult
-from hydrowatch.training.options import TrainingSettings
+from hydrowatch.training.options import DEFAULT_ALIAS, TrainingSettings, mlflow_name
 from hydrowatch.training.pipeline import train_and_track
 from hydrowatch.training.tracking import set_alias
 from hydrowatch.web import web_port
@@ -190,7 +190,7 @@ def run_demo(s: DemoSettings, *, show: bool = False) -> dict[str, Any]:
             check_seconds=s.accuracy_seconds, check_seed=s.seed + 100)
     accuracy = {kind: list(r.evaluation["checks"]) for kind, r in results.items()}
     champion = max(results, key=lambda k: (summaries[k]["checks"]["duty_cycle"] or 0.0, k == "parity", k == "narx"))
-    set_alias("hydrowatch", "champion", str(summaries[champion]["registered_version"]), s.tracking)
+    set_alias(mlflow_name(), DEFAULT_ALIAS, str(summaries[champion]["registered_version"]), s.tracking)
     live = live_fleet(s, s.out / "models" / champion, show)
     report = write_demo_report(s.out / "report.html", results, accuracy, live, champion)
     return {

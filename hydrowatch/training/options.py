@@ -12,11 +12,13 @@ from typing import Any
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.methods import method_class, method_names
+from hydrowatch.rig.plant import PLANT_RIG
 
 DEFAULT_EXPERIMENT = "hydrowatch"
 DEFAULT_SCORING_EXPERIMENT = "hydrowatch-scoring"
 """Experiment of ``score --log-run`` runs (apart from the training runs, whose metrics differ)."""
 DEFAULT_MODEL_NAME = "hydrowatch"
+"""Registered model of the plant's bundles (and, as ``hydrowatch-<rig>``, the start of a rig's: :func:`mlflow_name`)."""
 DEFAULT_ALIAS = "champion"
 DEFAULT_NARX: dict[str, Any] = {"input_delays": 4, "output_delays": 4, "hidden": 8, "max_iter": 40}
 """Short NARX of the demo (the study's Table 4.5 network is 15/15/35: ``--narx 15,15,35``)."""
@@ -83,6 +85,28 @@ class TrainingSettings:
         out = method_class(self.method).settings_dict(self)
         out.update({f"plan.{k}": v for k, v in asdict(self.plan).items()})
         return out
+
+
+def mlflow_name(rig: str = PLANT_RIG) -> str:
+    """The registered model a rig's bundles go to unless ``--model-name`` says otherwise, which is also the experiment
+    of a rig's runs unless ``--experiment`` does: :data:`DEFAULT_MODEL_NAME` (``hydrowatch``) for the plant,
+    ``hydrowatch-<rig>`` for any other rig (its description's ``name``), so that training a rig never moves the
+    plant's ``hydrowatch@champion`` (issue 17). ``train``, ``trainer``, ``demo`` and the scorer's default ``--model``
+    take their names from here."""
+    return DEFAULT_MODEL_NAME if rig == PLANT_RIG else f"{DEFAULT_MODEL_NAME}-{rig}"
+
+
+def default_model_uri(rig: str = PLANT_RIG) -> str:
+    """``models:/<mlflow_name(rig)>@champion``: the registry URI a scorer of ``rig`` loads unless given ``--model``."""
+    return f"models:/{mlflow_name(rig)}@{DEFAULT_ALIAS}"
+
+
+def tracking_names(args: argparse.Namespace, rig: str = PLANT_RIG) -> tuple[str, str | None]:
+    """(experiment, registered model or None with ``--no-register``) of :func:`add_tracking_arguments`' flags for
+    ``rig``: each flag given wins, else :data:`DEFAULT_EXPERIMENT` for the plant's experiment and
+    :func:`mlflow_name` for the rest."""
+    experiment = args.experiment or (DEFAULT_EXPERIMENT if rig == PLANT_RIG else mlflow_name(rig))
+    return experiment, None if args.no_register else args.model_name or mlflow_name(rig)
 
 
 STUDY_PLAN = DataPlan()
@@ -167,8 +191,11 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("MLflow")
     g.add_argument("--tracking-uri", default=None,
                    help="MLflow tracking URI (default $MLFLOW_TRACKING_URI or sqlite:///<cwd>/mlruns/mlflow.db)")
-    g.add_argument("--experiment", default=DEFAULT_EXPERIMENT, help=f"experiment (default {DEFAULT_EXPERIMENT})")
-    g.add_argument("--model-name", default=DEFAULT_MODEL_NAME, help=f"registered model (default {DEFAULT_MODEL_NAME})")
+    g.add_argument("--experiment", default=None,
+                   help=f"experiment (default {DEFAULT_EXPERIMENT}; with --rig {mlflow_name('<rig>')}, the rig's name)")
+    g.add_argument("--model-name", default=None,
+                   help=f"registered model (default {DEFAULT_MODEL_NAME}; with --rig {mlflow_name('<rig>')}, so that a "
+                        f"rig's model never takes the plant's {default_model_uri()})")
     g.add_argument("--alias", default=DEFAULT_ALIAS, help=f"alias moved to the new version (default {DEFAULT_ALIAS})")
     g.add_argument("--no-register", action="store_true", help="log the run but do not register the bundle")
     g.add_argument("--check-seconds", type=float, default=0.0, metavar="S",

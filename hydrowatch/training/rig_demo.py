@@ -4,7 +4,8 @@
    counted per component state, and written as a recording of ``rig_cycles`` messages (``<out>/<rig>.mcap``,
    what ``hydrowatch import --rig`` writes);
 2. train: the ``cycles`` method, evaluated on the honest split per component, logged to MLflow and registered
-   (:func:`~hydrowatch.training.rig_pipeline.train_rig_and_track`), as ``hydrowatch-<rig>@champion``;
+   (:func:`~hydrowatch.training.rig_pipeline.train_rig_and_track`), as ``hydrowatch-<rig>@champion``
+   (:func:`~hydrowatch.training.options.mlflow_name`, the plant's ``hydrowatch@champion`` left alone);
 3. replay on the bus: the scorer service loads the registered model from the registry, the replay service
    publishes the recording, every cycle's per-component verdicts are collected off ``…/cycle_health``
    (:func:`~hydrowatch.training.rig_bus.score_on_bus`); the registered model also scores the cycles offline
@@ -71,9 +72,8 @@ def run_rig_demo(rig: str, out: str | Path, *, data: str | Path | None = None,
     recording = write_rig_recording(out / f"{description.name}.mcap", cycles, description, text, fleet=DEMO_FLEET,
                                     machine=description.name)
     result, trained = train_rig_and_track(
-        rig, folder, out / "model", TrainingSettings(method="cycles"), tracking=tracking,
-        experiment=f"hydrowatch-{description.name}", model_name=f"hydrowatch-{description.name}",
-        alias=DEFAULT_ALIAS, report_dir=out / "training")
+        rig, folder, out / "model", TrainingSettings(method="cycles"), tracking=tracking, alias=DEFAULT_ALIAS,
+        report_dir=out / "training")  # experiment and registered model: hydrowatch-<rig> (options.mlflow_name)
     bundle = load_bundle(trained["model_uri"], trained["tracking_uri"])
     scored = score_cycles(bundle, cycles)
     (out / "scores.json").write_text(json.dumps(scored))

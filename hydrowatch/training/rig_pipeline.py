@@ -24,7 +24,7 @@ from hydrowatch.methods.cycles import CyclesMethod
 from hydrowatch.results import TrainingResult
 from hydrowatch.rig.description import rig_text
 from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.training.options import DEFAULT_ALIAS, DEFAULT_EXPERIMENT, DEFAULT_MODEL_NAME, TrainingSettings
+from hydrowatch.training.options import DEFAULT_ALIAS, TrainingSettings, mlflow_name
 from hydrowatch.training.pipeline import logged_fields
 from hydrowatch.training.tracking import log_training
 
@@ -47,17 +47,24 @@ def train_rig_and_track(
     settings: TrainingSettings,
     *,
     tracking: str | None = None,
-    experiment: str = DEFAULT_EXPERIMENT,
-    model_name: str | None = DEFAULT_MODEL_NAME,
+    experiment: str | None = None,
+    model_name: str | None = None,
+    register: bool = True,
     alias: str | None = DEFAULT_ALIAS,
     report_dir: str | Path | None = None,
 ) -> tuple[TrainingResult, dict[str, Any]]:
     """Train the cycles method on rig ``rig`` (a shipped name or a .toml file) from the folder ``data``, save the
     bundle to ``out``, log and register it; returns the result and the JSON summary (``hydrowatch train``'s: the
     result's summary plus ``rig``, ``components`` (per component ``accuracy``, ``macro_f1``, ``unknown``,
-    ``features``), ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``, ``runs_url``)."""
+    ``features``), ``out``, ``run_id``, ``tracking_uri``, ``model_uri``, ``registered_version``, ``runs_url``).
+
+    ``experiment`` and ``model_name`` default to ``hydrowatch-<rig>`` (:func:`~hydrowatch.training.options.mlflow_name`
+    of the description's name), never the plant's ``hydrowatch``; ``register=False`` logs the run without registering.
+    """
     started, clock = time.time(), time.perf_counter()
     description, text = rig_text(rig)
+    experiment = experiment or mlflow_name(description.name)
+    model_name = (model_name or mlflow_name(description.name)) if register else None
     cycles = read_rig_data(data, description)
     fitted = CyclesMethod.fit_cycles(text, description, cycles, settings)
     bundle = ModelBundle(fitted.method, fitted.manifest)

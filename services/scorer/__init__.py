@@ -12,7 +12,11 @@ of windows (:class:`hydrowatch.training.forecasts.FleetForecasts`). A chunk miss
 first asked for from the publisher's history (:mod:`hydrowatch.bus.recovery`; the machine's newer chunks wait
 meanwhile, at most 2 s); gaps that stay, NaN, late or out-of-order chunks make the window in progress ``invalid``
 with its reason.
-The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``); with
+The model comes from a bundle folder or the MLflow registry (``models:/NAME@ALIAS``; default the served rig's,
+``models:/hydrowatch@champion`` for the plant, ``models:/hydrowatch-<rig>@champion`` with ``--rig``). The scorer
+serves one rig (``--rig``; the plant when neither ``--rig`` nor ``--model`` is given, else the first model's rig) and
+refuses a model made for another rig or reading channels the rig lacks (:mod:`hydrowatch.training.served`): at start
+with the error, on a followed alias by keeping the model in use and logging the refusal. With
 ``--follow-alias S`` the alias is checked every S seconds and the scorer switches (fresh windows)
 when it moves; an alias that does not exist yet is waited for. SIGINT/SIGTERM drains and exits.
 A cycles bundle (``train --rig``) judges a rig's whole cycles instead: ``hydro/<fleet>/*/cycles`` in,
@@ -47,10 +51,14 @@ from hydrowatch.bus.takeover import release, sharded
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.log import event, get_logger
 from hydrowatch.recording import SAMPLE_RATE_HZ
+from hydrowatch.rig import BUILTIN
+from hydrowatch.rig.plant import PLANT_RIG
+from hydrowatch.training.options import default_model_uri
 
 if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, not when the CLI parses
     from hydrowatch.bus import Message
     from hydrowatch.methods.base import HealthMethod
+    from hydrowatch.rig import RigDescription
     from hydrowatch.training.bundle import ModelBundle
     from hydrowatch.training.forecasts import FleetForecasts
     from hydrowatch.training.online import ChunkBatch, OnlineScorer, WindowVerdict
@@ -58,13 +66,19 @@ if TYPE_CHECKING:  # the model code (torch) is imported when the service runs, n
 NAME = "scorer"
 HELP = ("score sensor chunks online: publish relative entropies (…/kl), verdicts (…/health) and the sensors the model "
         "expected (…/expected) per window, and each machine's forecast (…/forecast) every few windows")
-DEFAULT_MODEL = "models:/hydrowatch@champion"
+DEFAULT_MODEL = default_model_uri()
+"""The plant's registered model, loaded unless ``--model`` or ``--rig`` is given."""
 log = get_logger("services.scorer")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", default=DEFAULT_MODEL,
-                        help=f"bundle folder or registry URI (default {DEFAULT_MODEL})")
+    parser.add_argument("--model", default=None,
+                        help=f"bundle folder or registry URI (default {DEFAULT_MODEL}; with --rig "
+                             f"{default_model_uri('<rig>')})")
+    parser.add_argument("--rig", default=None, metavar="NAME|FILE",
+                        help=f"the rig served: {PLANT_RIG!r}, {', '.join(BUILTIN)} or a .toml description; a model "
+                             "made for another rig, or reading a channel this one lacks, is refused (default: the "
+                             "plant without --model, else the rig of the first model loaded)")
     parser.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for models:/ (default as train)")
     parser.add_argument("--follow-alias", type=float, default=0.0, metavar="SECONDS",
                         help="re-check a models:/NAME@ALIAS this often and switch when it moves (0: never)")
@@ -117,14 +131,20 @@ class _Model:
     The thread (:meth:`follow`) resolves the alias every ``--follow-alias`` seconds and, when it moved, loads the new
     version; the scoring loop takes it at its next turn (:meth:`moved`). The loop never waits on MLflow: while the
     server cannot be reached (down, restarting) the thread logs it once, keeps the model in use, and tries again.
+    Every model must serve ``served`` (None: the first model's rig; :mod:`hydrowatch.training.served`): the first is
+    refused with a DataError, a followed version is logged and skipped (:meth:`take`).
     """
 
-    def __init__(self, args: argparse.Namespace) -> None:
+    def __init__(self, args: argparse.Namespace, served: RigDescription | None = None) -> None:
         from hydrowatch.training.bundle import load_bundle
+        from hydrowatch.training.served import bundle_rig, check_served
 
         self.args = args
         self.bundle: ModelBundle = load_bundle(args.model, args.tracking_uri)
+        self.served: RigDescription = served if served is not None else bundle_rig(self.bundle)
+        check_served(self.bundle, self.served, str(args.model))
         self._loaded = self.bundle.version
+        self._refused: set[str] = set()
         self._next: ModelBundle | None = None
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -161,10 +181,9 @@ class _Model:
         while not stop.wait(a.follow_alias):
             try:
                 version, _ = resolve_version(a.model, a.tracking_uri)
-                if f"{name}/v{version}" != self._loaded:
-                    found = load_bundle(a.model, a.tracking_uri)
-                    with self._lock:
-                        self._next, self._loaded = found, found.version
+                current = f"{name}/v{version}"
+                found = None if current == self._loaded or current in self._refused else load_bundle(
+                    a.model, a.tracking_uri)
             except Exception as exc:  # noqa: BLE001 - any failure to reach or read the registry: keep scoring
                 if not down:
                     event(log, "registry unreachable; scoring on with the model in use", logging.WARNING,
@@ -174,6 +193,24 @@ class _Model:
             if down:
                 event(log, "registry reachable again", model=a.model, version=self._loaded)
                 down = False
+            if found is not None:
+                self.take(found)
+
+    def take(self, found: ModelBundle) -> bool:
+        """Hand ``found`` (the followed alias's new version) to the scoring loop, or refuse it when it cannot serve
+        the rig (logged once per version; the model in use stays); returns whether it was taken."""
+        from hydrowatch.training.served import check_served
+
+        try:
+            check_served(found, self.served, str(self.args.model))
+        except DataError as exc:
+            self._refused.add(found.version)
+            event(log, "model refused; scoring on with the model in use", logging.WARNING, model=self.args.model,
+                  refused=found.version, version=self._loaded, reason=str(exc))
+            return False
+        with self._lock:
+            self._next, self._loaded = found, found.version
+        return True
 
 
 class _Units:
@@ -243,11 +280,25 @@ def _scorer(model: _Model, units: _Units, args: argparse.Namespace) -> OnlineSco
                         stagger=args.stagger, unit_method=units.unit_method(), expected=args.expected)
 
 
+def served_rig(args: argparse.Namespace) -> RigDescription | None:
+    """The rig the scorer serves: ``--rig``'s, the plant's when neither ``--rig`` nor ``--model`` is given, else None
+    (the first model's rig); fills in ``args.model`` left out with the served rig's registered model
+    (:func:`~hydrowatch.training.options.default_model_uri`)."""
+    from hydrowatch.rig.plant import any_rig
+
+    served = any_rig(args.rig) if args.rig is not None else any_rig(PLANT_RIG) if args.model is None else None
+    if args.model is None:
+        args.model = default_model_uri(served.name if served is not None else PLANT_RIG)
+    return served
+
+
 def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | None:
-    """The model to start with. A registry alias followed with ``--follow-alias`` that does not exist yet (a trainer
+    """The model to start with, refused when made for another rig than the one served (:func:`served_rig`). A
+    registry alias followed with ``--follow-alias`` that does not exist yet (a trainer
     started beside the scorer has not registered its first model) or cannot be read (the server is not up) is looked
     for again every ``--follow-alias`` seconds, logged once; None when ``stop`` comes first. Anything else that cannot
     be loaded raises."""
+    served = served_rig(args)
     waiting = args.follow_alias > 0 and str(args.model).startswith("models:/")
     logged = False
     unreachable: tuple[type[Exception], ...] = (DataError,)
@@ -257,7 +308,7 @@ def _first_model(args: argparse.Namespace, stop: threading.Event) -> _Model | No
         unreachable = (DataError, OSError, MlflowException)
     while True:
         try:
-            return _Model(args)
+            return _Model(args, served)
         except unreachable as exc:
             if not waiting:
                 raise

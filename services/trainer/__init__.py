@@ -19,7 +19,12 @@ from pathlib import Path
 from hydrowatch.bus.service import service_main
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
-from hydrowatch.training.options import add_tracking_arguments, add_training_arguments, settings_list_from_args
+from hydrowatch.training.options import (
+    add_tracking_arguments,
+    add_training_arguments,
+    settings_list_from_args,
+    tracking_names,
+)
 
 NAME = "trainer"
 HELP = "train from a recordings folder (once or every N seconds) and register the model in MLflow"
@@ -42,10 +47,11 @@ def _train_once(args: argparse.Namespace, settings: list, failure: list[DataErro
 
     from hydrowatch.training.pipeline import train_each
 
+    experiment, model_name = tracking_names(args)  # the plant's: the trainer trains from sensor recordings
     try:
         for summary in train_each(
-                args.data, args.out, settings, tracking=args.tracking_uri, experiment=args.experiment,
-                model_name=None if args.no_register else args.model_name, alias=args.alias, skip_unreadable=True,
+                args.data, args.out, settings, tracking=args.tracking_uri, experiment=experiment,
+                model_name=model_name, alias=args.alias, skip_unreadable=True,
                 check_seconds=args.check_seconds):
             print(json.dumps(summary), flush=True)
     except DataError as exc:
