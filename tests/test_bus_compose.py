@@ -24,6 +24,7 @@ from hydrowatch.bus.service import service_parser
 from hydrowatch.bus.session import ENV_CONNECT, settings_from_args
 from hydrowatch.cli import build_parser
 from hydrowatch.commands import up
+from hydrowatch.training.options import tracking_names
 
 COMPOSE = Path(__file__).resolve().parent.parent / "compose.yaml"
 SERVICES = {"plant": "services.plant", "record": "services.recorder", "trainer": "services.trainer",
@@ -129,7 +130,8 @@ def test_compose_topology_is_the_one_up_starts(compose: dict) -> None:
         # ... and finds finished files: as `up` does, the recorders close theirs every half training period
         assert recorder.rotate_s <= max(trainer.every / 2, 10.0), name
     for name, scorer in by_command["scorer"]:  # the scorers follow what the trainer registers
-        assert scorer.model == f"models:/{trainer.model_name}@{trainer.alias}" and scorer.follow_alias > 0, name
+        registered = tracking_names(trainer)[1]  # --model-name, else the plant's (options.mlflow_name)
+        assert scorer.model == f"models:/{registered}@{trainer.alias}" and scorer.follow_alias > 0, name
 
 
 def test_compose_runs_the_router_topology_the_tests_start(compose: dict, tmp_path: Path) -> None:
@@ -148,10 +150,13 @@ def test_compose_runs_the_router_topology_the_tests_start(compose: dict, tmp_pat
         parsed[host] = service_parser(module.NAME, module.HELP, module.add_arguments).parse_args(argv)
     for host, args in parsed.items():
         _, theirs, env = deployed[host]
-        for name in ("shard", "method", "model_name", "alias", "history"):
+        for name in ("shard", "method", "alias", "history"):
             assert getattr(args, name, None) == getattr(theirs, name, None), (host, name)
+        if host == "trainer":  # the same experiment and registered model, given or left to the plant's default
+            assert tracking_names(args) == tracking_names(theirs)
         if host.startswith("score"):
-            assert args.model == theirs.model == f"models:/{parsed['trainer'].model_name}@{parsed['trainer'].alias}"
+            registered = tracking_names(parsed["trainer"])[1]
+            assert args.model == theirs.model == f"models:/{registered}@{parsed['trainer'].alias}"
             assert args.follow_alias > 0 and theirs.follow_alias > 0
         if host.startswith("record"):  # the trainer reads what the recorders write, in both
             assert args.out == parsed["trainer"].data and args.rotate_s <= max(parsed["trainer"].every / 2, 10.0)

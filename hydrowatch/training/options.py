@@ -101,12 +101,18 @@ def default_model_uri(rig: str = PLANT_RIG) -> str:
     return f"models:/{mlflow_name(rig)}@{DEFAULT_ALIAS}"
 
 
+def given_or_default_names(experiment: str | None, model_name: str | None, *, register: bool = True,
+                           rig: str = PLANT_RIG) -> tuple[str, str | None]:
+    """(experiment, registered model or None when not ``register``) of ``rig``'s training: each name given wins, else
+    :data:`DEFAULT_EXPERIMENT` for the plant's experiment and :func:`mlflow_name` for the rest."""
+    experiment = experiment or (DEFAULT_EXPERIMENT if rig == PLANT_RIG else mlflow_name(rig))
+    return experiment, (model_name or mlflow_name(rig)) if register else None
+
+
 def tracking_names(args: argparse.Namespace, rig: str = PLANT_RIG) -> tuple[str, str | None]:
-    """(experiment, registered model or None with ``--no-register``) of :func:`add_tracking_arguments`' flags for
-    ``rig``: each flag given wins, else :data:`DEFAULT_EXPERIMENT` for the plant's experiment and
-    :func:`mlflow_name` for the rest."""
-    experiment = args.experiment or (DEFAULT_EXPERIMENT if rig == PLANT_RIG else mlflow_name(rig))
-    return experiment, None if args.no_register else args.model_name or mlflow_name(rig)
+    """:func:`given_or_default_names` of :func:`add_tracking_arguments`' flags (``--experiment``, ``--model-name``,
+    ``--no-register``) for ``rig``."""
+    return given_or_default_names(args.experiment, args.model_name, register=not args.no_register, rig=rig)
 
 
 STUDY_PLAN = DataPlan()

@@ -24,7 +24,7 @@ from hydrowatch.methods.cycles import CyclesMethod
 from hydrowatch.results import TrainingResult
 from hydrowatch.rig.description import rig_text
 from hydrowatch.training.bundle import ModelBundle
-from hydrowatch.training.options import DEFAULT_ALIAS, TrainingSettings, mlflow_name
+from hydrowatch.training.options import DEFAULT_ALIAS, TrainingSettings, given_or_default_names
 from hydrowatch.training.pipeline import logged_fields
 from hydrowatch.training.tracking import log_training
 
@@ -63,8 +63,7 @@ def train_rig_and_track(
     """
     started, clock = time.time(), time.perf_counter()
     description, text = rig_text(rig)
-    experiment = experiment or mlflow_name(description.name)
-    model_name = (model_name or mlflow_name(description.name)) if register else None
+    experiment, model_name = given_or_default_names(experiment, model_name, register=register, rig=description.name)
     cycles = read_rig_data(data, description)
     fitted = CyclesMethod.fit_cycles(text, description, cycles, settings)
     bundle = ModelBundle(fitted.method, fitted.manifest)
