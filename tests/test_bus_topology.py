@@ -183,6 +183,59 @@ def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_regis
     assert records.count("registry reachable again") == 1 and "model switched" in records
 
 
+def test_a_followed_alias_that_moves_to_another_rigs_model_is_refused_once_and_the_model_kept(monkeypatch) -> None:
+    # issue 17: the plant's alias moved to a cycles bundle (another rig) is logged once, not loaded again, not taken;
+    # the next plant version is
+    import argparse
+    import logging
+    import threading
+
+    import hydrowatch.training.bundle as bundle_module
+    import hydrowatch.training.tracking as tracking_module
+    import services.scorer as scorer
+    from hydrowatch.rig import builtin_rig
+
+    uci = builtin_rig("uci-hydraulic")
+    answers, current = ["1", "2", "2", "2", "3"], ["1"]
+
+    def resolve(uri: str, tracking: str | None = None) -> tuple[str, str]:
+        current[0] = answers.pop(0) if answers else "3"
+        return current[0], "src"
+
+    monkeypatch.setattr(tracking_module, "resolve_version", resolve)
+    loaded: list[str] = []
+
+    def load(model: str, tracking: str | None = None) -> argparse.Namespace:
+        version = current[0]
+        loaded.append(version)
+        method = argparse.Namespace(channels=list(uci.channels.names), rig=uci) if version == "2" else \
+            argparse.Namespace(channels=["voltage", "flow"])
+        return argparse.Namespace(version=f"hydrowatch/v{version}", method="cycles" if version == "2" else "parity",
+                                  health_method=method)
+
+    monkeypatch.setattr(bundle_module, "load_bundle", load)
+    records: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
+    logger = logging.getLogger("hydrowatch.services.scorer")
+    logger.addHandler(handler)
+    stop = threading.Event()
+    try:
+        model = scorer._Model(argparse.Namespace(model="models:/hydrowatch@champion", tracking_uri=None,
+                                                 follow_alias=0.02, rig=None))
+        model.follow(stop)
+        deadline = time.monotonic() + 10
+        while not model.moved():
+            assert time.monotonic() < deadline, "the plant's next version was never taken"
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        model.join()
+        logger.removeHandler(handler)
+    assert model.bundle.version == "hydrowatch/v3" and loaded == ["1", "2", "3"]  # v2 loaded once, refused once
+    assert records.count("model refused; scoring on with the model in use") == 1
+
+
 def test_the_trainer_counts_an_unreachable_tracking_server_as_a_skipped_training(monkeypatch, tmp_path: Path) -> None:
     # past MLflow's own retries a server that stays down fails the training, not the trainer: the next one registers
     import argparse
