@@ -17,6 +17,7 @@ import os
 import time
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -129,15 +130,46 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
         assert versions_seen[last_v1 + 1:] and all(not v.endswith("/v1") for v in versions_seen[last_v1 + 1:]), machine
 
 
-def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_registry_outage(monkeypatch) -> None:
-    # a registry that cannot be reached is logged once, the model in use kept; the new version is taken when it returns
-    import argparse
+def _followed(args: Any) -> tuple[Any, str, list[str]]:
+    """The scorer's model of ``args`` following its alias until it switches (10 s at most): the model, the version it
+    started with, and the scorer's log messages meanwhile (INFO and above)."""
     import logging
     import threading
 
+    import services.scorer as scorer
+
+    records: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
+    logger = logging.getLogger("hydrowatch.services.scorer")
+    logger.addHandler(handler)
+    previous = logger.level
+    logger.setLevel(logging.INFO)
+    stop, model = threading.Event(), None
+    try:
+        model = scorer._Model(args)
+        first = model.bundle.version
+        assert not model.moved()
+        model.follow(stop)
+        deadline = time.monotonic() + 10
+        while not model.moved():
+            assert time.monotonic() < deadline, "the new version was never taken"
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        if model is not None:
+            model.join()
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+    return model, first, records
+
+
+def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_registry_outage(monkeypatch) -> None:
+    # a registry that cannot be reached is logged once, the model in use kept; the new version is taken when it returns
+    import argparse
+
     import hydrowatch.training.bundle as bundle_module
     import hydrowatch.training.tracking as tracking_module
-    import services.scorer as scorer
 
     answers: list = [("1", "src"), ConnectionError("refused"), ConnectionError("refused"), ("2", "src")]
 
@@ -156,29 +188,10 @@ def test_the_scorer_follows_its_alias_off_the_scoring_loop_and_waits_out_a_regis
 
     monkeypatch.setattr(tracking_module, "resolve_version", resolve)
     monkeypatch.setattr(bundle_module, "load_bundle", load)
-    records: list[str] = []
-    handler = logging.Handler()
-    handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
-    logger = logging.getLogger("hydrowatch.services.scorer")
-    logger.addHandler(handler)
-    previous = logger.level
-    logger.setLevel(logging.INFO)
-    stop = threading.Event()
-    try:
-        model = scorer._Model(argparse.Namespace(model="models:/hydrowatch@champion", tracking_uri="http://x:5000",
-                                                 follow_alias=0.02))
-        assert model.bundle.version == "hydrowatch/v1" and not model.moved()
-        model.follow(stop)
-        deadline = time.monotonic() + 10
-        while not model.moved():
-            assert time.monotonic() < deadline, "the new version was never taken"
-            time.sleep(0.01)
-        assert model.bundle.version == "hydrowatch/v2" and loaded == ["models:/hydrowatch@champion"] * 2
-    finally:
-        stop.set()
-        model.join()
-        logger.removeHandler(handler)
-        logger.setLevel(previous)
+    model, first, records = _followed(argparse.Namespace(model="models:/hydrowatch@champion",
+                                                         tracking_uri="http://x:5000", follow_alias=0.02))
+    assert first == "hydrowatch/v1" and model.bundle.version == "hydrowatch/v2"
+    assert loaded == ["models:/hydrowatch@champion"] * 2
     assert records.count("registry unreachable; scoring on with the model in use") == 1
     assert records.count("registry reachable again") == 1 and "model switched" in records
 
@@ -187,12 +200,9 @@ def test_a_followed_alias_that_moves_to_another_rigs_model_is_refused_once_and_t
     # issue 17: the plant's alias moved to a cycles bundle (another rig) is logged once, not loaded again, not taken;
     # the next plant version is
     import argparse
-    import logging
-    import threading
 
     import hydrowatch.training.bundle as bundle_module
     import hydrowatch.training.tracking as tracking_module
-    import services.scorer as scorer
     from hydrowatch.rig import builtin_rig
 
     uci = builtin_rig("uci-hydraulic")
@@ -214,24 +224,8 @@ def test_a_followed_alias_that_moves_to_another_rigs_model_is_refused_once_and_t
                                   health_method=method)
 
     monkeypatch.setattr(bundle_module, "load_bundle", load)
-    records: list[str] = []
-    handler = logging.Handler()
-    handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
-    logger = logging.getLogger("hydrowatch.services.scorer")
-    logger.addHandler(handler)
-    stop = threading.Event()
-    try:
-        model = scorer._Model(argparse.Namespace(model="models:/hydrowatch@champion", tracking_uri=None,
-                                                 follow_alias=0.02, rig=None))
-        model.follow(stop)
-        deadline = time.monotonic() + 10
-        while not model.moved():
-            assert time.monotonic() < deadline, "the plant's next version was never taken"
-            time.sleep(0.01)
-    finally:
-        stop.set()
-        model.join()
-        logger.removeHandler(handler)
+    model, _, records = _followed(argparse.Namespace(model="models:/hydrowatch@champion", tracking_uri=None,
+                                                     follow_alias=0.02))
     assert model.bundle.version == "hydrowatch/v3" and loaded == ["1", "2", "3"]  # v2 loaded once, refused once
     assert records.count("model refused; scoring on with the model in use") == 1
 
