@@ -9,13 +9,14 @@ finite difference computed by ONE batched simulator call over the perturbed mode
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import signal
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 
 from hydrowatch.gap.align import AlignedRecording, simulate_sensors
 from hydrowatch.gap.locate import noise_std
@@ -54,6 +55,15 @@ split at the relief valve's kink every step)."""
 
 _STEP = 1e-2
 """Finite-difference step in the scaled coordinates (1 % of the value or of the catalog default)."""
+
+STALL_ITERATIONS = 3
+STALL_DROP = 1e-3
+"""A fit stops once its cost has fallen by less than STALL_DROP (relative) over the last STALL_ITERATIONS
+solver iterations (issue 12, item 5): each iteration costs one batched simulation of every coordinate's
+finite difference (20 simulations of 120 s for a unit with one effect), and the solver's own tolerances
+(ftol, xtol) rarely end a fit on a noisy 120 s record, so fits ran to their iteration limit while the cost
+no longer moved (gear backlash on population 2035: a confirmation's last iterations and its 20-iteration
+polish changed the cost by 3·10⁻⁴ of it, for 220 simulations)."""
 
 
 @dataclass(frozen=True)
@@ -160,6 +170,9 @@ class OutputErrorFit:
         Mean over fitting samples of the summed squared normalised errors of the three sensors.
     n_fit : int
         Number of fitting samples per sensor.
+    converged : bool
+        Whether the solver stopped on its tolerances or on the stall rule (STALL_DROP), not on its
+        iteration limit.
     """
 
     space: ModelSpace
@@ -172,6 +185,7 @@ class OutputErrorFit:
     prediction: np.ndarray
     fit_cost: float
     n_fit: int
+    converged: bool = False
 
 
 class _Objective:
@@ -260,10 +274,19 @@ def fit_output_error(
     objective = _Objective(aligned, space, band_hz)
     lo, hi = space.bounds()
     start = np.clip(space.start() if z0 is None else np.asarray(z0, dtype=float), lo + 1e-9, hi - 1e-9)
+    trace: list[float] = []
+
+    def iteration(intermediate_result: OptimizeResult) -> None:
+        trace.append(2.0 * float(intermediate_result.cost))
+        if len(trace) > STALL_ITERATIONS and trace[-1 - STALL_ITERATIONS] - trace[-1] < STALL_DROP * trace[-1]:
+            raise StopIteration
+
+    converged = True
     if start.size:
         sol = least_squares(objective.fun, start, jac=objective.jac, bounds=(lo, hi), method="trf",
-                            x_scale="jac", max_nfev=max_nfev, xtol=1e-4, ftol=1e-5)
+                            x_scale="jac", max_nfev=max_nfev, xtol=1e-4, ftol=1e-5, callback=iteration)
         z, r, jac = sol.x, sol.fun, sol.jac
+        converged = sol.status != 0
     else:
         z = start
         r = objective.fun(z)
@@ -275,10 +298,13 @@ def fit_output_error(
     data_r = r[: r.size - n_prior]
     cov = _covariance(space, z, data_r, jac[: r.size - n_prior], aligned.measured.shape[0])
     ci95 = intervals(space, z, cov)
-    event(log, "output-error fit", parameters=len(z), simulations=objective.n_sim, cost=float(np.mean(data_r**2)))
+    event(log, "output-error fit", parameters=len(z), simulations=objective.n_sim, cost=float(np.mean(data_r**2)),
+          iterations=len(trace), converged=converged)
+    event(log, "output-error trace", level=logging.DEBUG, iterations=len(trace),
+          trace=",".join(f"{v:.6g}" for v in trace))
     n_fit = int(aligned.fit_mask.sum())
     return OutputErrorFit(space, z, params, effects, values, ci95, cov, prediction,
-                          float(np.sum(data_r**2) / n_fit), n_fit)
+                          float(np.sum(data_r**2) / n_fit), n_fit, converged)
 
 
 def _covariance(space: ModelSpace, z: np.ndarray, data_r: np.ndarray, jac: np.ndarray, n_sensors: int
