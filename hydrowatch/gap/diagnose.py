@@ -67,7 +67,11 @@ BLOCK_SAMPLES = 200
 """Block length of the held-out bootstrap, samples (1 s)."""
 
 POLISH_NFEV = 20
-"""Solver iterations that continue an accepted model's joint fit before the next round."""
+"""Solver iterations that continue an accepted model's joint fit before the next round (fewer when its
+cost stops falling first, calibrate.STALL_DROP; none when the confirmation converged)."""
+
+ABSORB_NFEV = 10
+"""Solver iterations of :func:`_absorb`'s refit."""
 
 PRUNE_NFEV = 8
 """Solver iterations of the refit without an earlier effect (backward step): a redundant effect's
@@ -218,7 +222,7 @@ def _absorb(aligned: AlignedRecording, current: OutputErrorFit, trials: list[Tri
     best = max(absorbed, key=lambda t: t.gain).refit
     effects = {k: dict(v) for k, v in best.fit.effects.items() if k != best.candidate.id}
     space = replace(current.space, base=best.fit.parameters, effects=effects)
-    refitted = fit_output_error(aligned, space, max_nfev=POLISH_NFEV // 2)
+    refitted = fit_output_error(aligned, space, max_nfev=ABSORB_NFEV)
     event(log, "absorbed", effect=best.candidate.label, before=current.fit_cost, after=refitted.fit_cost)
     return refitted if refitted.fit_cost < current.fit_cost else current
 
