@@ -38,8 +38,8 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     ``design_start=False`` leaves the design start out (no static stage; the partners of the third start
     are set to their design values, the prior keeps the current model's weight): diagnose.py does so
     once the model holds an accepted effect (issue 12, item 5: a static stage is 92–135 simulations of
-    120 s, and in every later-round confirmation logged on populations 7 and 2035 — 8 of 8 — the
-    current start won; the design start won only in round 1, gear backlash on 2035).
+    120 s, and in every later-round confirmation logged on populations 7 and 2035 — 11 of 11, on three
+    recordings — the current start won; the design start won only in round 1, gear backlash on 2035).
     """
     c = screened.candidate
     screened_effect = screened.fit.effects[c.id]
