@@ -211,7 +211,8 @@ def holdout_cost(aligned: AlignedRecording, prediction: np.ndarray) -> float:
 
 
 def scan_magnitude(
-    aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters]
+    aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters],
+    *, plain_origins: bool = True,
 ) -> tuple[PlantParameters, float, float]:
     """The plant parameters (the base model's or one of ``origins``) and starting value of the
     candidate's first free parameter at the lowest-cost grid point, and that cost minus the base
@@ -220,9 +221,10 @@ def scan_magnitude(
     Starting from ``origins`` (the nominal parameters), or from the base model with the candidate's
     partners set back to their origin values, matters when the calibration without the effect
     wandered far to mimic it (a dead time bent into a slow spool, entrained air into a low βe).
+    ``plain_origins=False``: only the base model and the base with its partners at the origins' values.
     """
     name = candidate.free[0]
-    starts = [base.parameters, *origins]
+    starts = [base.parameters, *(origins if plain_origins else ())]
     starts += [base.parameters.replace(**{k: getattr(o, k) for k in candidate.partners})
                for o in origins if candidate.partners]
     grid = []

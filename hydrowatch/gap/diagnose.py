@@ -67,7 +67,11 @@ BLOCK_SAMPLES = 200
 """Block length of the held-out bootstrap, samples (1 s)."""
 
 POLISH_NFEV = 20
-"""Solver iterations that continue an accepted model's joint fit before the next round."""
+"""Solver iterations that continue an accepted model's joint fit before the next round (fewer when its
+cost stops falling first, calibrate.STALL_DROP; none when the confirmation converged)."""
+
+ABSORB_NFEV = 10
+"""Solver iterations of :func:`_absorb`'s refit."""
 
 PRUNE_NFEV = 8
 """Solver iterations of the refit without an earlier effect (backward step): a redundant effect's
@@ -218,7 +222,7 @@ def _absorb(aligned: AlignedRecording, current: OutputErrorFit, trials: list[Tri
     best = max(absorbed, key=lambda t: t.gain).refit
     effects = {k: dict(v) for k, v in best.fit.effects.items() if k != best.candidate.id}
     space = replace(current.space, base=best.fit.parameters, effects=effects)
-    refitted = fit_output_error(aligned, space, max_nfev=POLISH_NFEV // 2)
+    refitted = fit_output_error(aligned, space, max_nfev=ABSORB_NFEV)
     event(log, "absorbed", effect=best.candidate.label, before=current.fit_cost, after=refitted.fit_cost)
     return refitted if refitted.fit_cost < current.fit_cost else current
 
@@ -231,7 +235,11 @@ held-out gain, which a runner-up screened at under half the leader's gain is unl
 
 
 def _polish(aligned: AlignedRecording, refit: Refit) -> Refit:
-    """The confirmed fit continued for POLISH_NFEV more solver iterations."""
+    """The confirmed fit continued for POLISH_NFEV more solver iterations; as it is when its fit
+    converged already (its cost stopped falling, calibrate.STALL_DROP: polishing only continues a fit
+    its iteration limit cut short)."""
+    if refit.fit.converged:
+        return refit
     fit = fit_output_error(aligned, refit.fit.space, refit.fit.z, max_nfev=POLISH_NFEV)
     return Refit(refit.candidate, fit, holdout_cost(aligned, fit.prediction))
 
@@ -371,7 +379,8 @@ def diagnose(
         lead = screened[0][0] if screened else 0.0
         for rank, (screen_gain, s, data, base) in enumerate(screened):
             if rank < confirm and screen_gain > 0 and _worth_confirming(trials, screen_gain, lead, s.candidate):
-                full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp)
+                full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp,
+                                   design_start=not diagnosis.accepted)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
@@ -383,7 +392,8 @@ def diagnose(
                 trial = _trial(s, judge(data, base, s), False)
             trials.append(trial)
             event(log, "candidate judged", effect=s.candidate.label, passed=trial.passed, gain=round(trial.gain, 4),
-                  explained=round(trial.explained, 3), delta_bic=round(trial.delta_bic, 1))
+                  explained=round(trial.explained, 3), delta_bic=round(trial.delta_bic, 1),
+                  screen_gain=round(screen_gain, 4))
         diagnosis.rounds.append(trials)
         passed = [t for t in trials if t.passed]
         if not passed:

@@ -18,7 +18,7 @@ STAGE_NFEV = 15
 
 
 def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
-                nominal: PlantParameters | None, pump: float | None = None) -> Refit:
+                nominal: PlantParameters | None, pump: float | None = None, *, design_start: bool = True) -> Refit:
     """The full calibration (calibrate.py) under the hypothesis "current model + the screened effect":
     every plant parameter and every free effect parameter estimated, with the accepted effects and the
     candidate's screened values as the effects' starting point.
@@ -34,6 +34,12 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     0.254; from the calibrated model it reached 0.0289 of the true 0.0287, cost 0.0055). The pump
     displacement starts at ``pump`` (m³/rad; the null calibration's) instead of the calibration's pump
     scan and restart (its first stage refits it with the other static parameters).
+
+    ``design_start=False`` leaves the design start out (no static stage; the partners of the third start
+    are set to their design values, the prior keeps the current model's weight): diagnose.py does so
+    once the model holds an accepted effect (issue 12, item 5: a static stage is 92–135 simulations of
+    120 s, and in every later-round confirmation logged on populations 7 and 2035 — 11 of 11, on three
+    recordings — the current start won; the design start won only in round 1, gear backlash on 2035).
     """
     c = screened.candidate
     screened_effect = screened.fit.effects[c.id]
@@ -41,17 +47,22 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     effect_free = tuple((e, p) for e, p in current.space.effect_free if e != c.id) + tuple((c.id, p) for p in c.free)
     design = nominal or current.space.prior or current.parameters
     free = current.space.plant_free
-    static, prediction = static_stage(aligned, design, free=free, effects=effects, max_nfev=STAGE_NFEV,
-                                      pump=pump if "Dp" in free else None)
     scanned = replace(c, scan=(*c.scan, screened_effect[c.free[0]]),
                       fixed={**c.fixed, **{k: v for k, v in screened_effect.items() if k != c.free[0]}})
-    start, value, _ = scan_magnitude(aligned, current, scanned, [static])
+    prior = current.space.prior is not None
+    if design_start:
+        static, prediction = static_stage(aligned, design, free=free, effects=effects, max_nfev=STAGE_NFEV,
+                                          pump=pump if "Dp" in free else None)
+        start, value, _ = scan_magnitude(aligned, current, scanned, [static])
+        weight = prior_weight(aligned, prediction) if prior else 0.0
+    else:
+        static = None
+        start, value, _ = scan_magnitude(aligned, current, scanned, [design], plain_origins=False)
+        weight = current.space.prior_weight
     effects[c.id] = scanned.effect(**{c.free[0]: value})
     if c.id == "stribeck_friction":
         effects[c.id]["Tc"] = min(effects[c.id]["Tc"], value)
-    prior = current.space.prior is not None
-    space = ModelSpace(start, effects, free, effect_free, design if prior else None,
-                       prior_weight(aligned, prediction) if prior else 0.0)
+    space = ModelSpace(start, effects, free, effect_free, design if prior else None, weight)
     fit = fit_output_error(aligned, space, max_nfev=2 * STAGE_NFEV)
     event(log, "hypothesis start", effect=c.label, start="design" if start is static else "current",
           value=round(value, 6))

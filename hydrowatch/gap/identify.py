@@ -12,7 +12,9 @@ then call nearly everything undetermined). The design-value prior (calibrate.PRI
 A parameter is **determined** when its posterior standard deviation of ln(value) is below
 :data:`DETERMINED_SD`; the others are reported as "not determined by this recording", with the
 parameters they are entangled with (posterior correlation ≥ :data:`ENTANGLED`) and the experiment
-that would determine them. Only determined parameters are refitted with a candidate effect.
+that would determine them. The discovery test (discovery.py) counts the determined ones as the
+estimated coordinates; a candidate effect's calibration (hypothesis.py) still refits all of them
+(the prior holds the others).
 """
 
 from __future__ import annotations

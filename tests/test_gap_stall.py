@@ -1,0 +1,33 @@
+"""A fit ends when its cost stops falling, and a converged confirmation is not polished again (issue 12,
+item 5: the analysis' time goes to simulations, one batched call per solver iteration)."""
+
+from __future__ import annotations
+
+import pytest
+
+from hydrowatch.gap import diagnose
+from hydrowatch.gap.align import align
+from hydrowatch.gap.calibrate import ModelSpace, fit_output_error
+from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
+from hydrowatch.plant.excitation import filtered_noise
+from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.plant.simulator import simulate
+
+
+def test_a_fit_stops_once_its_cost_stops_falling_and_is_then_not_polished() -> None:
+    design = PlantParameters()
+    unit = design.replace(Kq=design.Kq * 1.15, TL=design.TL * 0.85)
+    aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
+    space = ModelSpace(design, {}, ("Kq", "TL"))
+    fit = fit_output_error(aligned, space, max_nfev=40)
+    # Two parameters from 15 % off: the stall rule ends the fit long before 40 iterations, at the unit.
+    assert fit.converged
+    assert fit.values["Kq"] == pytest.approx(unit.Kq, rel=0.01)
+    assert fit.values["TL"] == pytest.approx(unit.TL, rel=0.02)
+    cut = fit_output_error(aligned, space, max_nfev=2)
+    assert not cut.converged and cut.fit_cost > fit.fit_cost
+    candidate = CANDIDATES[0]
+    done = Refit(candidate, fit, holdout_cost(aligned, fit.prediction))
+    assert diagnose._polish(aligned, done) is done
+    polished = diagnose._polish(aligned, Refit(candidate, cut, holdout_cost(aligned, cut.prediction)))
+    assert polished.fit.converged and polished.fit.fit_cost < cut.fit_cost
