@@ -187,11 +187,20 @@ def test_plant_declares_machine_tokens_only_when_asked() -> None:
 def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path, monkeypatch) -> None:
     # the trainer trains on the recorder's folder and registers; the scorer waits for that model, then scores
     import threading
+    from contextlib import contextmanager
 
+    import hydrowatch.bus.service as service
     from hydrowatch.report.fleet_table import verdict_rows
 
     monkeypatch.chdir(tmp_path)
     port, rows, ready, done = free_port(), {}, threading.Event(), threading.Event()
+    enough = threading.Event()  # what Ctrl-C sets: `up` stops once every machine has verdicts enough to judge
+
+    @contextmanager
+    def stop_when_enough():
+        yield enough
+
+    monkeypatch.setattr(service, "stop_on_signals", stop_when_enough)
 
     def listen() -> None:
         with open_session(BusSettings(mode="peer", connect=(f"tcp/127.0.0.1:{port}",))) as session, \
@@ -201,14 +210,16 @@ def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path,
                 message = health.recv(timeout=0.5)
                 if message is not None:
                     rows.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
+                    if len(rows) == 2 and min(map(len, rows.values())) >= 30:
+                        enough.set()
 
     listener = threading.Thread(target=listen, daemon=True)
     listener.start()
     assert ready.wait(30)
     try:
         code = main(["up", "--services", "plant,record,trainer,scorer", "--machines", "2", "--states",
-                     "healthy,load_warning", "--speed", "20", "--seconds", "70", "--bus-port", str(port),
-                     "--retrain", "20", "--method", "parity", "--fleet", FLEET,
+                     "healthy,load_warning", "--speed", "20", "--seconds", "90", "--bus-port", str(port),
+                     "--retrain", "10", "--method", "parity", "--fleet", FLEET,
                      "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"])
     finally:
         done.set()
