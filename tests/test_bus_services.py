@@ -13,6 +13,7 @@ import pytest
 
 from hydrowatch.bus import BusSettings, Subscriber, alive, free_port, open_session, wait_alive
 from hydrowatch.cli import main
+from hydrowatch.errors import DataError
 from hydrowatch.io.codec import arrays_from_sensor_chunk
 from hydrowatch.io.mcap_io import Recovery, iter_messages
 
@@ -186,11 +187,20 @@ def test_plant_declares_machine_tokens_only_when_asked() -> None:
 def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path, monkeypatch) -> None:
     # the trainer trains on the recorder's folder and registers; the scorer waits for that model, then scores
     import threading
+    from contextlib import contextmanager
 
+    import hydrowatch.bus.service as service
     from hydrowatch.report.fleet_table import verdict_rows
 
     monkeypatch.chdir(tmp_path)
     port, rows, ready, done = free_port(), {}, threading.Event(), threading.Event()
+    enough = threading.Event()  # what Ctrl-C sets: `up` stops once every machine has verdicts enough to judge
+
+    @contextmanager
+    def stop_when_enough():
+        yield enough
+
+    monkeypatch.setattr(service, "stop_on_signals", stop_when_enough)
 
     def listen() -> None:
         with open_session(BusSettings(mode="peer", connect=(f"tcp/127.0.0.1:{port}",))) as session, \
@@ -200,14 +210,16 @@ def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path,
                 message = health.recv(timeout=0.5)
                 if message is not None:
                     rows.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
+                    if len(rows) == 2 and min(map(len, rows.values())) >= 30:
+                        enough.set()
 
     listener = threading.Thread(target=listen, daemon=True)
     listener.start()
     assert ready.wait(30)
     try:
         code = main(["up", "--services", "plant,record,trainer,scorer", "--machines", "2", "--states",
-                     "healthy,load_warning", "--speed", "20", "--seconds", "70", "--bus-port", str(port),
-                     "--retrain", "20", "--method", "parity", "--fleet", FLEET,
+                     "healthy,load_warning", "--speed", "20", "--seconds", "90", "--bus-port", str(port),
+                     "--retrain", "10", "--method", "parity", "--fleet", FLEET,
                      "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"])
     finally:
         done.set()
@@ -220,28 +232,47 @@ def test_up_with_trainer_and_scorer_gives_every_machine_verdicts(tmp_path: Path,
     assert (tmp_path / "models" / "latest").is_dir()
 
 
+def wait_recorded(folder: Path, machines: list[str], until: float, timeout: float = 60) -> None:
+    """Wait until ``folder`` holds a sample at plant time ``until`` s or later of each of ``machines`` (complete chunks
+    of files a recorder may still be writing)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            found = read_machines(folder) if folder.is_dir() else {}
+        except DataError:  # a file just created, its header not written yet
+            found = {}
+        if all(m in found and found[m][0].size and found[m][0][-1] >= until for m in machines):
+            return
+        assert time.monotonic() < deadline, f"{folder} has no sample at {until:.1f} s of every one of {machines}"
+        time.sleep(0.2)
+
+
 @pytest.mark.slow
 def test_a_dead_recorder_shards_machines_are_taken_over_and_given_back(tmp_path: Path) -> None:
     from hydrowatch.bus import machine_hash
 
     port = free_port()
     args = ("--fleet", FLEET, "--bus-port", port, "--flush", 0.2)
+    expected = [m for m in (f"m{i:03d}" for i in range(6)) if machine_hash(m) % 2 == 1]  # shard 1's own machines
     recorders = [start("services.recorder", "--out", tmp_path / f"s{i}", "--shard", f"{i}/2", *args) for i in range(2)]
     plant = back = None
     try:
         wait_for(port, "record", count=2)
-        plant = start("services.plant", "--fleet", FLEET, "--machines", 6, "--seconds", 40, "--speed", 1,
+        # runs until stopped: each step below waits for what the recorders wrote, not for a fixed time
+        plant = start("services.plant", "--fleet", FLEET, "--machines", 6, "--speed", 1,
                       "--wait-subscribers", 30, "--bus-port", port)
         wait_for(port, "plant")
         began = time.monotonic()
-        time.sleep(8)
+        wait_recorded(tmp_path / "s1" / FLEET, expected, 2.0)  # shard 1 recorded its machines a while
         assert stop(recorders[1], signal.SIGKILL) == -signal.SIGKILL
         killed = time.monotonic() - began
-        time.sleep(14)
+        wait_recorded(tmp_path / "s0" / FLEET, expected, killed + 3.0)  # shard 0 has them
         back = start("services.recorder", "--out", tmp_path / "s1b", "--shard", "1/2", *args)
         wait_for(port, "record", count=2)
         returned = time.monotonic() - began
-        assert plant.wait(timeout=120) == 0
+        # the plant goes on past the give-back bound below: a shard 0 that kept them would have recorded past it
+        wait_recorded(tmp_path / "s1b" / FLEET, expected, returned + 10.0 + 2.0)
+        assert stop(plant) == 0
         assert stop(recorders[0]) == 0 and stop(back) == 0
     finally:
         for proc in (*recorders, plant, back):
@@ -249,7 +280,8 @@ def test_a_dead_recorder_shards_machines_are_taken_over_and_given_back(tmp_path:
                 proc.kill()
     first, dead, again = (read_machines(tmp_path / name / FLEET) for name in ("s0", "s1", "s1b"))
     theirs = sorted(m for m in first if machine_hash(m) % 2 == 1)
-    assert theirs and sorted(dead) == theirs == sorted(again), "shard 1's machines: its own, then shard 0's, back"
+    assert theirs == expected and sorted(dead) == theirs == sorted(again), "shard 1's machines: its own, then " \
+        "shard 0's, back"
     for machine in theirs:
         taken = first[machine][0]
         # shard 0 began on them within 10 s of the kill (plant time ≈ wall time at speed 1, started before `began`)
