@@ -7,8 +7,9 @@ import pytest
 
 from hydrowatch.gap import diagnose
 from hydrowatch.gap.align import align
-from hydrowatch.gap.calibrate import ModelSpace, fit_output_error
+from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
+from hydrowatch.gap.space import ModelSpace
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.simulator import simulate

@@ -15,7 +15,7 @@ import numpy as np
 
 from hydrowatch.errors import NotFittedError
 from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
-from hydrowatch.gap.calibrate import CALIBRATED, OutputErrorFit, calibrate
+from hydrowatch.gap.calibrate import OutputErrorFit, calibrate
 from hydrowatch.gap.candidates import select_candidates, untestable
 from hydrowatch.gap.correction import SparseCorrection, build_library
 from hydrowatch.gap.diagnose import Diagnosis, diagnose
@@ -25,6 +25,7 @@ from hydrowatch.gap.locate import noise_std
 from hydrowatch.gap.relations import STRUCTURE, RelationCheck, check_relations
 from hydrowatch.gap.report import build_report, model_config
 from hydrowatch.gap.second_opinion import SecondOpinion, second_opinion
+from hydrowatch.gap.space import CALIBRATED
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.effects import Effects, resolve_effects
 from hydrowatch.plant.parameters import PlantParameters

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording, simulate_sensors
-from hydrowatch.gap.calibrate import CALIBRATED, ModelSpace, OutputErrorFit, fit_output_error
+from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
+from hydrowatch.gap.space import CALIBRATED, ModelSpace
 from hydrowatch.plant.effects import EFFECT_IDS, EFFECTS, SENSOR_NAMES
 from hydrowatch.plant.parameters import PlantParameters
 

@@ -6,8 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import ModelSpace, OutputErrorFit, fit_output_error, prior_weight, static_stage
+from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error, prior_weight, static_stage
 from hydrowatch.gap.candidates import Refit, holdout_cost, scan_magnitude
+from hydrowatch.gap.space import ModelSpace
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 

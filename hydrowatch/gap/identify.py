@@ -7,7 +7,7 @@ symmetries such as βe, Vs, Vt scaled together). The information of the recordin
 sensitivities of the normalised simulation errors on the fitting blocks and W each sensor's inverse
 noise variance (its residual's 70–100 Hz band, locate.noise_std): what the sensor noise lets the
 record determine, also while the model still misses physics (a residual-variance weighting would
-then call nearly everything undetermined). The design-value prior (calibrate.PRIOR_SD) adds
+then call nearly everything undetermined). The design-value prior (space.PRIOR_SD) adds
 1/PRIOR_SD² per parameter.
 A parameter is **determined** when its posterior standard deviation of ln(value) is below
 :data:`DETERMINED_SD`; the others are reported as "not determined by this recording", with the
@@ -24,8 +24,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording, simulate_sensors
-from hydrowatch.gap.calibrate import PRIOR_SD, OutputErrorFit, intervals
+from hydrowatch.gap.calibrate import OutputErrorFit, intervals
 from hydrowatch.gap.locate import noise_std
+from hydrowatch.gap.space import PRIOR_SD
 
 DETERMINED_SD = 0.05
 """Posterior standard deviation of ln(value) below which the recording determines a parameter
