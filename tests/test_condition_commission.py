@@ -256,3 +256,31 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert registry.for_machine("m7").version == "hydrowatch-m7/v1" and registry.for_machine("m8") is None
     stale = Commissionings(tmp_path / "units", ModelBundle.load(tmp_path / "fleet", version="other"))
     assert stale.for_machine("m7") is None  # commissioned from another fleet version: the fleet model judges
+
+
+def test_load_states_follow_the_windows_relief_where_commissioning_left_it_open(units, models) -> None:
+    """A commissioned relief 20 % above the unit's (a duty cycle's ridge left 13–31 % on seed 2037): with the relief
+    left open (``relief_spread``) the load warning reads right per window and pooled (measured 1.0, fixed 0.04);
+    nothing else moves: healthy windows and a worn relief spring, never trained on (``unknown``), read the same.
+    (This unit's recording determines its relief: at 1.2 × its healthy windows read healthy in 21 %; commissioning
+    would not choose it. The test isolates the load states' rule.)"""
+    unit, day = units[1]
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    f = models[0].features_
+    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
+    test = windows(("healthy", "load_warning", "relief_spring_warning"), day, duty_cycle(120, (0.5, 3.5), seed=45), 45)
+    right = {"healthy": "healthy", "load_warning": "load_warning", "relief_spring_warning": "unknown"}
+    got = {}
+    for spread in (0.0, C.RELIEF_SPREAD):
+        moved = C._moved(models[0], wrong, healthy, C.KEPT, spread)
+        assert moved.features_.relief_spread_ == spread
+        assert type(moved.features_).from_dict(moved.features_.to_dict()).relief_spread_ == spread  # saved with it
+        got[spread] = {n: {s: float(np.mean(moved.predict(w, n) == right[s])) for s, w in test.items()}
+                       for n in (1, 12)}
+    fixed, open_ = got[0.0], got[C.RELIEF_SPREAD]
+    for n in (1, 12):
+        assert open_[n]["load_warning"] >= 0.9 and open_[n]["load_warning"] >= fixed[n]["load_warning"] + 0.5, got
+        assert open_[n]["relief_spring_warning"] >= 0.9, got
+        for s in ("healthy", "relief_spring_warning"):
+            assert open_[n][s] == fixed[n][s], got

@@ -131,6 +131,10 @@ chooses: a recording showing one is refused from the whole recording's fit, befo
 MIN_HEALTHY = 0.9
 """Smallest share of the recording's own windows the commissioned model must read ``healthy``."""
 WHOLE_FIT = "whole recording (its halves disagree)"
+RELIEF_SPREAD = PRIOR.get("Pc", DEFAULT_PRIOR)
+"""Log-scale half-width of the relief on a unit whose recording's halves disagreed (:data:`SPLIT_AGREEMENT`) or whose
+supply was kept: the build spread between units (the identification's prior). Its load states then follow each
+window's relief (:mod:`hydrowatch.condition.relief`)."""
 """``Commissioning.supply`` when the trained unit's supply failed the self-check and the whole recording's fit
 passed it."""
 
@@ -156,6 +160,9 @@ class Commissioning:
     supply, split, held_out : str, float, float or None
         Whether the supply's parameters were identified, the split-half disagreement and, when the halves
         disagreed, the held-out error ratio that decided (:class:`SupplyChoice`).
+    relief_spread : float
+        Log-scale half-width of the relief left undetermined (:data:`RELIEF_SPREAD` when the halves disagreed or
+        the supply was kept, else 0).
     """
 
     model: ConditionModel
@@ -165,12 +172,14 @@ class Commissioning:
     supply: str = "identified"
     split: float = 0.0
     held_out: float | None = None
+    relief_spread: float = 0.0
 
     def summary(self) -> dict[str, Any]:
         """JSON-able summary (the bundle manifest's ``commissioned.unit``)."""
         return {**self.unit.summary(), "seconds": round(self.seconds, 1), "healthy_share": round(self.healthy_share, 4),
                 "supply": self.supply, "split_disagreement": round(self.split, 4),
                 "held_out_ratio": None if self.held_out is None else round(self.held_out, 3),
+                "relief_spread": round(self.relief_spread, 3),
                 "left_to_prior": left_to_prior(self.unit)}
 
 
@@ -356,7 +365,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     present = _fault_present(features, unit)
     if present:
         raise CommissioningError(present)
-    moved = _moved(model, unit, valid, supply)
+    spread = RELIEF_SPREAD if choice.split > SPLIT_AGREEMENT or supply != "identified" else 0.0
+    moved = _moved(model, unit, valid, supply, spread)
     healthy, verdicts = _self_check(moved, valid)
     if healthy < MIN_HEALTHY and (supply == KEPT or choice.held_out is not None):
         # The halves disagreed and the chosen fit reads the unit's own healthy windows as a fault: the other choice
@@ -368,7 +378,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         other_fit, other_supply = ((pump_capacity(features, whole, valid), WHOLE_FIT) if supply == KEPT
                                    else (identify_unit(*args, RESTRICTED_PARAMETERS), KEPT))
         if _fault_present(features, other_fit) is None:
-            other = _moved(model, other_fit, valid, other_supply)
+            other = _moved(model, other_fit, valid, other_supply, RELIEF_SPREAD)
             share, other_verdicts = _self_check(other, valid)
             if share >= MIN_HEALTHY:
                 unit, supply, moved, healthy, verdicts = other_fit, other_supply, other, share, other_verdicts
@@ -382,7 +392,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
                                  f"present, or the recording is not of this kind of unit.{hint}")
     event(_log, "unit commissioned", logging.INFO, seconds=round(seconds), healthy=round(healthy, 3), supply=supply,
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
-    return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out)
+    spread = moved.features_.relief_spread_
+    return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out, spread)
 
 
 def _fault_present(features: ConditionFeatures, unit: UnitFit, faults: tuple[str, ...] | None = None) -> str | None:
@@ -399,11 +410,13 @@ def _fault_present(features: ConditionFeatures, unit: UnitFit, faults: tuple[str
     return None
 
 
-def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str) -> ConditionModel:
-    """The fleet model moved to ``unit``: its boxes, levels and floors; decision and open-set rule shared."""
+def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str,
+           relief_spread: float = 0.0) -> ConditionModel:
+    """The fleet model moved to ``unit``: its boxes, levels and floors (the load states following each window's
+    relief when ``relief_spread`` > 0); decision and open-set rule shared."""
     moved = ConditionModel(pooled_excess=model.pooled_excess_)
     moved.pooled_excess_ = model.pooled_excess_
-    moved.features_ = model.features_.for_unit(unit, windows, BAND_WIDENING)
+    moved.features_ = model.features_.for_unit(unit, windows, BAND_WIDENING, relief_spread)
     moved.decision_, moved.open_set_ = model.decision_, model.open_set_
     # Supply not identified: windows at loads the recording never reached can misfit the valve relation a little;
     # pooled arithmetically that spreads over the pool, so the open set judges each window alone (docs/unseen-units.md).

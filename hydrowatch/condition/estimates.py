@@ -12,7 +12,7 @@ inside a box (a health state's severity band), which is what the health-state sc
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -333,9 +333,14 @@ class FillGroup:
     estimates: ParityEstimates
 
 
+Box = Mapping[str, tuple[float, float]]
+"""A state's severity box: fault → (low, high), floats, or arrays (m,) of per-window bounds."""
+BoxOf = Box | Callable[[ParityEstimates], Box]
+"""A box, or what makes one from the windows' estimates (:mod:`hydrowatch.condition.relief`)."""
+
+
 def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Sequence[str],
-                 box_sets: Sequence[Sequence[Mapping[str, tuple[float, float]]]]
-                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+                 box_sets: Sequence[Sequence[BoxOf]]) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
     """F[r, k] = MSE_r(state k's box, k's fill) / MSE_r(free) per set of boxes, and the free MSEs.
 
     Parameters
@@ -343,7 +348,8 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
     groups : sequence of FillGroup
         Every state in exactly one group (one group when no sensor is missing).
     box_sets : sequence of sequences of boxes
-        Per set (band, level), each state's box, in state order.
+        Per set (band, level), each state's box, in state order; a callable box is made from each
+        fill group's estimates (per-window bounds).
 
     Returns
     -------
@@ -360,7 +366,8 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
         cache: dict[tuple[str, float, float], np.ndarray] = {}
         for boxes, out in zip(box_sets, held):
             for k in g.states:
-                out[k] = relation_mse(g.signals, g.estimates, p, boxes[k], cache)
+                box = boxes[k]
+                out[k] = relation_mse(g.signals, g.estimates, p, box(g.estimates) if callable(box) else box, cache)
         est = g.estimates
         free["load"] = np.minimum(free["load"], est.mse["load"])
         free["motor"] = np.minimum(free["motor"], est.mse["motor"])

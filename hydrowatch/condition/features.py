@@ -42,6 +42,7 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
 from hydrowatch.condition.oil import OIL_RANGE, leakage_range, oil_box, oil_parts, temperature_known
+from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, window_starts
@@ -108,6 +109,9 @@ class ConditionFeatures:
         The unit's own nominal parameters (identified, or ``nominal`` as given).
     unit_ : dict
         :meth:`hydrowatch.condition.unit.UnitFit.summary` of the identification ({} without it).
+    relief_spread_ : float
+        Log-scale half-width of the relief a commissioning recording left undetermined (0: determined, and
+        for every trained model); the load states then follow each window's relief (:mod:`.relief`).
     feature_names_ : list of str
     """
 
@@ -168,6 +172,7 @@ class ConditionFeatures:
         if "healthy" not in windows_by_state:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.unit_: dict[str, Any] = {}
+        self.relief_spread_ = 0.0
         if self.identify:
             unit = identify_unit(E.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
                                  self.viscosity_coefficient)
@@ -205,7 +210,8 @@ class ConditionFeatures:
         healthy = E.relation_mse(sig, est, self.nominal_, self.boxes_["healthy"])
         return {r: float(np.median(healthy[r])) for r in self.relations_}
 
-    def for_unit(self, unit: UnitFit, healthy: np.ndarray, margin: float = 0.0) -> ConditionFeatures:
+    def for_unit(self, unit: UnitFit, healthy: np.ndarray, margin: float = 0.0,
+                 relief_spread: float = 0.0) -> ConditionFeatures:
         """These features moved to another unit of the fleet (commissioning, :mod:`~hydrowatch.condition.commission`).
 
         The unit's nominal parameters replace the trained unit's. Every fault level keeps its
@@ -213,8 +219,9 @@ class ConditionFeatures:
         level_severity(trained unit) (:func:`~hydrowatch.plant.faults.level_severity`). That is
         an extrapolation to loads the unit's healthy data never reached, so each band box is
         widened by ``margin`` (a fraction of its bounds) on top of the trained one. Residual
-        floors are measured on the unit's own ``healthy`` windows (its DAQ's noise). Returns a new
-        fitted instance; ``self`` is unchanged.
+        floors are measured on the unit's own ``healthy`` windows (its DAQ's noise). With ``relief_spread`` > 0
+        (the recording left the relief undetermined, log scale) the load states follow each window's relief
+        (:mod:`hydrowatch.condition.relief`). Returns a new fitted instance; ``self`` is unchanged.
         """
         self._check_fitted()
         out = ConditionFeatures.from_dict(self.to_dict())
@@ -223,6 +230,7 @@ class ConditionFeatures:
             fault, name = parse_state(state)
             if fault is not None and name is not None:
                 out.levels_[state] = level * level_severity(fault, name, p) / level_severity(fault, name, self.nominal_)
+        out.relief_spread_ = float(relief_spread)
         out.boxes_ = {s: out._box(s, p, margin=margin) for s in out.states_}
         out.level_boxes_ = {s: out._box(s, p, narrow=True) for s in out.states_}
         w = E.check_windows(healthy, self.window)
@@ -237,8 +245,19 @@ class ConditionFeatures:
     def _box(self, state: str, p: PlantParameters, narrow: bool = False,
              margin: float = 0.0) -> dict[str, tuple[float, float]]:
         """A state's band box (``margin`` widens its own fault's band further), or with ``narrow`` its level box."""
-        return E.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
-                           BAND_MARGIN + margin)
+        box = E.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
+                          BAND_MARGIN + margin)
+        return free_relief(box, self.relief_spread_) if self._follows_relief(state) else box
+
+    def _follows_relief(self, state: str) -> bool:
+        """Whether ``state`` is a load state on a unit whose relief commissioning left open (module relief)."""
+        return getattr(self, "relief_spread_", 0.0) > 0.0 and parse_state(state)[0] == "load"
+
+    def _load_scale(self) -> LoadScale:
+        """The load levels' factor at each relief (:class:`~hydrowatch.condition.relief.LoadScale`), made once."""
+        if getattr(self, "_scale", None) is None:
+            self._scale = LoadScale(self.nominal_, self.relief_spread_)
+        return self._scale
 
     def _names(self) -> list[str]:
         return [f"{r}|{k}" for r in self.relations_ for k in self.states_]
@@ -357,8 +376,13 @@ class ConditionFeatures:
             for j in g.states:
                 fault = faults[j]
                 if fault is not None:
-                    severity[:, j] = g.estimates.severity[fault]
                     weight[:, j] = g.estimates.curvature[fault] / np.maximum(free[RELATION_OF[fault]], 1e-300)
+                    severity[:, j] = g.estimates.severity[fault]
+                    if self._follows_relief(self.states_[j]):  # in the commissioned relief's frame (module relief)
+                        frame = window_factors(self._load_scale(), g.estimates.severity["relief_spring"],
+                                               g.estimates.curvature["relief_spring"])[2]
+                        severity[:, j] /= np.where(frame > 0.0, frame, 1.0)
+                        weight[:, j] *= frame**2
         out[ok] = np.concatenate([band, level, severity, weight], axis=1)
         return out, ok, groups[0].estimates  # the nominal fill comes first (:meth:`_estimates`)
 
@@ -390,7 +414,15 @@ class ConditionFeatures:
                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
         """:func:`hydrowatch.condition.estimates.state_ratios` for each set of boxes (band, level)."""
         return E.state_ratios(groups, self.nominal_, self.relations_,
-                              [[b[state] for state in self.states_] for b in boxes])
+                              [[self._box_of(state, b[state]) for state in self.states_] for b in boxes])
+
+    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]]) -> E.BoxOf:
+        """``box``, or for a state that follows the relief, what scales its load range by each window's relief."""
+        if not self._follows_relief(state):
+            return box
+        scale = self._load_scale()
+        return lambda est: scaled_load_box(box, *window_factors(scale, est.severity["relief_spring"],
+                                                                est.curvature["relief_spring"])[:2])
 
     def severities(self, windows: np.ndarray) -> dict[str, np.ndarray]:
         """Unconstrained severity estimates of every fault per window, ``{fault: (n_windows,)}`` (NaN where invalid)."""
