@@ -50,7 +50,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
 from hydrowatch.condition.estimates import ParityEstimates
-from hydrowatch.condition.features import RELATION_OF, ConditionFeatures
+from hydrowatch.condition.features import ConditionFeatures
+from hydrowatch.condition.features_evidence import RELATION_OF
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
 from hydrowatch.plant.parameters import PlantParameters
 

@@ -31,7 +31,6 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from hydrowatch.condition.parity import SEVERITY_LIMITS
 from hydrowatch.plant.faults import level_severity
 from hydrowatch.plant.parameters import PlantParameters
 
@@ -85,18 +84,18 @@ class LoadScale:
         return float(self.values.min()), float(self.values.max())
 
 
-def determined(relief: np.ndarray, curvature: np.ndarray) -> np.ndarray:
+def determined(relief: np.ndarray, curvature: np.ndarray, limits: tuple[float, float]) -> np.ndarray:
     """Windows whose own relief estimate means something: a positive curvature, off the search limits.
 
     Where the valve relation does not depend on the relief (the supply pump-limited, or a hold far below the
     relief) its fit stops on a search limit with zero curvature (seed 2037, unit 11: one load-warning window at
     s = −0.5, g 1.37, against 0.05 in the others).
     """
-    lo, hi = SEVERITY_LIMITS["relief_spring"]
+    lo, hi = limits  # the relief fit's search range (parity.SEVERITY_LIMITS)
     return (curvature > 0.0) & (relief > lo) & (relief < hi)
 
 
-def window_factors(scale: LoadScale, relief: np.ndarray, curvature: np.ndarray
+def window_factors(scale: LoadScale, relief: np.ndarray, curvature: np.ndarray, limits: tuple[float, float]
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per window: the load box's lower and upper factor, and the factor of its severity's frame (0: none).
 
@@ -105,7 +104,7 @@ def window_factors(scale: LoadScale, relief: np.ndarray, curvature: np.ndarray
     no weight in a pool, :meth:`~hydrowatch.condition.features.ConditionFeatures.transform_evidence`).
     """
     g = scale(relief)
-    ok = determined(relief, curvature)
+    ok = determined(relief, curvature, limits)
     low, high = scale.span()
     return np.where(ok, g, low), np.where(ok, g, high), np.where(ok, g, 0.0)
 
