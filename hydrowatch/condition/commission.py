@@ -21,13 +21,13 @@ population (seed 7) and seed 2028 had no such unit (docs/unseen-units.md).
 
 The recording is refused, and the unit keeps the fleet model, when it cannot commission the unit:
 
-- **too short**: under :data:`MIN_SECONDS` of valid windows;
+- **too short**: under :data:`~hydrowatch.condition.refusal.MIN_SECONDS` of valid windows;
 - **a command that never loads the parts**: the command's 5–95 % spread under
-  :data:`MIN_COMMAND_SPREAD` (a hold: inertia, damping and the valve's gain cannot be told
-  apart), or the motor turning in under :data:`MIN_MOVING` of the samples;
+  :data:`~hydrowatch.condition.refusal.MIN_COMMAND_SPREAD` (a hold: inertia, damping and the valve's gain cannot be told
+  apart), or the motor turning in under :data:`~hydrowatch.condition.refusal.MIN_MOVING` of the samples;
 - **a fault already present**: an identified parameter that a trained fault moves lies more than
-  :data:`FAULT_FRACTION` of the way from the trained unit to that fault's warning level (load:
-  brake torque TL; motor_leak: Ctm; pump_leak: Cp), or the commissioned model reads fewer than
+  :data:`~hydrowatch.condition.refusal.FAULT_FRACTION` of the way from the trained unit to that fault's warning
+  level (load: brake torque TL; motor_leak: Ctm; pump_leak: Cp), or the commissioned model reads fewer than
   :data:`MIN_HEALTHY` of the recording's own windows ``healthy``. Build spread between units
   (±20 % TL, ±50 % leakage) stays below the first; a valve_coil or relief_spring fault is a change
   of Kq or Pc as large as the spread between units and cannot be told from it, and on a duty cycle a
@@ -47,6 +47,8 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition import parity
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.refusal import CommissioningError as CommissioningError  # the public name stays here
+from hydrowatch.condition.refusal import check_excitation, fault_present
 from hydrowatch.condition.unit import (
     DEFAULT_PRIOR,
     PRIOR,
@@ -56,7 +58,6 @@ from hydrowatch.condition.unit import (
     identify_unit,
     valve_error,
 )
-from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.faults import level_severity, parse_state
 from hydrowatch.plant.parameters import PlantParameters
@@ -97,26 +98,6 @@ population with the errors-in-variables weighting (:mod:`hydrowatch.condition.un
 the physical levels 0.01–0.05 on duty cycles whose fit was right; counted over every parameter, the pump
 displacement a duty cycle leaves to its prior put 0.31–0.32 on every one of them, and the supply was kept on 8 of 9
 units (median unit 85.7 % right, 100 % once counted over the informed parameters)."""
-MIN_SECONDS = 300.0
-"""Healthy operation needed, s of valid windows (the issue's ≥ 5 minutes)."""
-MIN_COMMAND_SPREAD = 1.0
-"""Smallest 5–95 % spread of the valve command, V."""
-MOVING_SPEED = 2.0
-"""Gearbox speed, rad/s, above which the motor counts as turning (a healthy 0.5–3.5 V duty cycle: below it 5 % of
-the time; a motor_leak warning on it: 10–20 %)."""
-MIN_MOVING = 0.5
-"""Smallest share of samples with the motor turning."""
-FAULT_FRACTION: dict[str, float] = {"load": 0.6, "motor_leak": 0.6, "pump_leak": 1.0}
-"""Share of the way from the trained unit to a fault's warning level at which a parameter reads as that fault.
-
-pump_leak's is the warning level itself: on a working duty cycle the pump leakage Cp absorbs what the recording does
-not separate from it (the pump's displacement and speed, ±20 % each between units), so a healthy unit whose pump
-delivers less than the trained one's reads as a pump leak. Measured with the first unit's 7-state model on 300 s
-duty cycles (``implied_severities`` / warning, healthy units): development populations seed 7 and 8, 38 units, up to
-0.45; seed 2028, 0.65–0.73 on 3 of 19 (refused at 0.6); the same units with a pump_leak warning already present read
-0.62–1.61 on 30 of 31 units whose supply was kept, ≤ 0.23 on 6 of 7 whose supply was identified (the fit gave the
-leak to a smaller pump): the ranges meet, so a warning already present is refused on 11 of 38 units instead of 31
-(docs/unseen-units.md, "Refusing a unit for a pump leak")."""
 BAND_WIDENING = 0.3
 """Extra width of each fault band on a commissioned unit (:meth:`ConditionFeatures.for_unit`): the levels there are
 extrapolated from healthy data; measured on duty cycles with 1–3× the default sensor noise, +17 to +29 % too high."""
@@ -137,10 +118,6 @@ supply was kept: the build spread between units (the identification's prior). It
 window's relief (:mod:`hydrowatch.condition.relief`)."""
 """``Commissioning.supply`` when the trained unit's supply failed the self-check and the whole recording's fit
 passed it."""
-
-
-class CommissioningError(DataError):
-    """The healthy recording cannot commission the unit; the message says what is missing."""
 
 
 @dataclass(frozen=True)
@@ -181,34 +158,6 @@ class Commissioning:
                 "held_out_ratio": None if self.held_out is None else round(self.held_out, 3),
                 "relief_spread": round(self.relief_spread, 3),
                 "left_to_prior": left_to_prior(self.unit)}
-
-
-def implied_severities(fleet: PlantParameters, unit: PlantParameters) -> dict[str, float]:
-    """Severity of each fault that a parameter-level difference between the units would mean (plant/faults.py scales).
-
-    load: TL_unit / TL_fleet − 1; motor_leak: (Ctm_unit − Ctm_fleet) / c_ref; pump_leak:
-    (Cp + Cpl)_unit − (Cp + Cpl)_fleet over c_ref, with c_ref = Dp·ωp / Pc of the fleet unit.
-    """
-    c_ref = parity.reference_conductance(fleet)
-    return {"load": unit.TL / fleet.TL - 1.0, "motor_leak": (unit.Ctm - fleet.Ctm) / c_ref,
-            "pump_leak": (unit.Cp + unit.Cpl - fleet.Cp - fleet.Cpl) / c_ref}
-
-
-def check_excitation(windows: np.ndarray, seconds: float) -> None:
-    """Refuse (:class:`CommissioningError`) a recording too short or on a command that never loads the parts."""
-    if seconds < MIN_SECONDS:
-        raise CommissioningError(f"commissioning needs at least {MIN_SECONDS:.0f} s of valid healthy operation. "
-                                 f"Got {seconds:.0f} s; record longer on a working command.")
-    u = windows[:, :, E.CHANNELS.index("voltage")]
-    spread = float(np.quantile(u, 0.95) - np.quantile(u, 0.05))
-    if spread < MIN_COMMAND_SPREAD:
-        raise CommissioningError(f"the command must move over at least {MIN_COMMAND_SPREAD} V (5–95 % spread) to "
-                                 f"load the parts. Got {spread:.2f} V: a hold cannot tell inertia, damping and valve "
-                                 "gain apart; record a duty cycle or filtered noise.")
-    moving = float(np.mean(np.abs(windows[:, :, E.CHANNELS.index("speed")]) > MOVING_SPEED))
-    if moving < MIN_MOVING:
-        raise CommissioningError(f"the motor must turn (|speed| > {MOVING_SPEED} rad/s) in at least "
-                                 f"{MIN_MOVING:.0%} of the samples. Got {moving:.0%}; record the unit working.")
 
 
 def _levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
@@ -292,7 +241,7 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     half = windows.shape[0] // 2
     parts = (windows[:half], windows[half:])
     whole = identify_unit(windows, *args)
-    present = _fault_present(features, whole, SUPPLY_FREE_FAULTS)
+    present = fault_present(features, whole, SUPPLY_FREE_FAULTS)
     if present:  # the load and motor relations are identified in full whichever supply is chosen
         raise CommissioningError(present)
     first, second = (identify_unit(part, *args, start=whole.parameters) for part in parts)
@@ -362,7 +311,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     check_excitation(valid, seconds)
     choice = identify_for_commissioning(features, valid)
     unit, supply = choice.fit, choice.supply
-    present = _fault_present(features, unit)
+    present = fault_present(features, unit)
     if present:
         raise CommissioningError(present)
     spread = RELIEF_SPREAD if choice.split > SPLIT_AGREEMENT or supply != "identified" else 0.0
@@ -377,7 +326,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         whole = choice.whole if choice.whole is not None else identify_unit(*args)
         other_fit, other_supply = ((pump_capacity(features, whole, valid), WHOLE_FIT) if supply == KEPT
                                    else (identify_unit(*args, RESTRICTED_PARAMETERS), KEPT))
-        if _fault_present(features, other_fit) is None:
+        if fault_present(features, other_fit) is None:
             other = _moved(model, other_fit, valid, other_supply, RELIEF_SPREAD)
             share, other_verdicts = _self_check(other, valid)
             if share >= MIN_HEALTHY:
@@ -394,20 +343,6 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
     spread = moved.features_.relief_spread_
     return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out, spread)
-
-
-def _fault_present(features: ConditionFeatures, unit: UnitFit, faults: tuple[str, ...] | None = None) -> str | None:
-    """The refusal message when an identified parameter reads as a trained fault (:data:`FAULT_FRACTION`; of
-    ``faults`` only, when given), else None."""
-    for fault, severity in implied_severities(features.nominal_, unit.parameters).items():
-        if faults is not None and fault not in faults:
-            continue
-        warning = level_severity(fault, "warning", features.nominal_)
-        if severity > FAULT_FRACTION[fault] * warning:
-            return (f"the healthy recording looks like a {fault} fault already present: its parameters mean severity "
-                    f"{severity:.2f} (warning {warning:.2f}) against the trained unit. Repair the unit, or commission "
-                    "on a recording from when it was healthy.")
-    return None
 
 
 def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str,
