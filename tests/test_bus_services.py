@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import signal
+import socket
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 
 from hydrowatch.bus import BusSettings, Subscriber, alive, free_port, open_session, wait_alive
 from hydrowatch.cli import main
@@ -24,11 +27,25 @@ def start(module: str, *argv: object) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", module, *map(str, argv)])
 
 
-def wait_for(port: int, service: str, count: int = 1) -> None:
-    """Wait until ``count`` processes of ``service`` are up (= subscribed) on the bus at ``port``."""
+def wait_for(port: int, service: str, count: int = 1, processes: Sequence[subprocess.Popen] = ()) -> None:
+    """Wait until ``count`` processes of ``service`` are up (= subscribed) on the bus at ``port``; when they are not
+    within 60 s, say what the bus looked like (``processes``: the services started, whose exit codes it gives)."""
     # connect only: a short-lived session must not take the rendezvous port the services meet on
     with open_session(BusSettings(mode="peer", connect=(f"tcp/127.0.0.1:{port}",))) as session:
-        assert wait_alive(session, service, FLEET, count, timeout=60), f"{service} did not come up"
+        if not wait_alive(session, service, FLEET, count, timeout=60):
+            raise AssertionError(f"{service} did not come up: {_bus_state(session, port, processes)}")
+
+
+def _bus_state(session: zenoh.Session, port: int, processes: Sequence[subprocess.Popen]) -> str:
+    """What tells a service that never started (exit codes), a bus nobody holds (the rendezvous port refuses) and a
+    mesh this probe only partly reached (its peers) apart."""
+    with socket.socket() as probe:
+        probe.settimeout(2.0)
+        listened = probe.connect_ex(("127.0.0.1", port)) == 0
+    return (f"tokens seen {alive(session, f'hydro/{FLEET}/*/status', 2.0)}, this probe linked to "
+            f"{len(list(session.info.peers_zid()))} peer(s), rendezvous port {port} "
+            f"{'accepts' if listened else 'refuses'} connections, exit codes {[p.poll() for p in processes]} "
+            "(None: running)")
 
 
 def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM) -> int:
@@ -133,7 +150,7 @@ def test_two_recorder_shards_record_every_machine_exactly_once(tmp_path: Path) -
     recorders = [start("services.recorder", "--out", tmp_path / f"s{i}", "--fleet", FLEET, "--shard", f"{i}/2",
                        "--bus-port", port) for i in range(2)]
     try:
-        wait_for(port, "record", count=2)
+        wait_for(port, "record", count=2, processes=recorders)
         plant = start("services.plant", "--fleet", FLEET, "--machines", 12, "--seconds", 1, "--speed", "inf",
                       "--wait-subscribers", 30, "--bus-port", port)
         assert plant.wait(timeout=120) == 0

@@ -24,9 +24,10 @@ from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import Effects, parse_effects
 from hydrowatch.plant.excitation import filtered_noise, n_samples, parse_volts, read_command
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, parse_state
-from hydrowatch.plant.fleet import DegradationPath, state_seeds
+from hydrowatch.plant.fleet import state_seeds
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.paths import FORM, parse_degradation, simulate_path
+from hydrowatch.plant.wear import DegradationPath
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
 if TYPE_CHECKING:

@@ -5,30 +5,31 @@ The IPC stream carries the schema with its metadata (``hydrowatch.schema``,
 another version apart (:class:`UndecodableMessageError`, :class:`SchemaMismatchError`,
 :class:`SchemaVersionError`, all :class:`DataError`), and any Arrow library in any language can read
 a message without hydrowatch. The price is the schema bytes in every message; the trade-off is
-measured in ``benchmarks/bench_io_codec.py`` and written down in ``docs/formats.md``.
+measured in ``benchmarks/bench_io_codec.py`` and written down in ``docs/formats.md``. What is read from a
+payload's bytes without building its batch (its head, the null counts of its field nodes, where ``t`` and the string
+columns lie) is :mod:`hydrowatch.io.ipc_bytes`.
 """
 
 from __future__ import annotations
 
-import functools
-import struct
-from collections.abc import Callable
 from typing import NamedTuple
 
 import pyarrow as pa
 
 from hydrowatch.errors import DataError
+from hydrowatch.io.ipc_bytes import (
+    END_OF_STREAM,
+    F64,
+    first_t_offset,
+    head,
+    required_null_counts,
+    schema_message,
+    string_buffers,
+    strings_ok,
+)
 from hydrowatch.io.sensor_chunk import LABEL_FIELD, arrays_from_sensor_chunk, sensor_chunk_from_arrays
 from hydrowatch.schemas import SchemaMismatchError, SchemaVersionError, schema_name, validate
 
-_FRAME = struct.Struct("<Ii")
-_CONTINUATION = 0xFFFFFFFF
-_END_OF_STREAM = _FRAME.pack(_CONTINUATION, 0)
-_U16 = struct.Struct("<H").unpack_from
-_I32 = struct.Struct("<i").unpack_from
-_U32 = struct.Struct("<I").unpack_from
-_I64 = struct.Struct("<q").unpack_from
-_F64 = struct.Struct("<d").unpack_from
 _READ_ERRORS = (pa.ArrowException, EOFError, OSError)
 """What reading a corrupted message raises (ArrowInvalid, ArrowKeyError for a dictionary id, ...)."""
 _CACHE_SIZE = 64
@@ -67,7 +68,7 @@ def encode_batch(batch: pa.RecordBatch) -> bytes:
     prefix = _schema_prefix(batch)
     if prefix is None:
         return _stream_bytes(batch)
-    return b"".join((prefix, batch.serialize(), _END_OF_STREAM))  # join reads the Arrow buffer in place
+    return b"".join((prefix, batch.serialize(), END_OF_STREAM))  # join reads the Arrow buffer in place
 
 
 def _stream_bytes(batch: pa.RecordBatch) -> bytes:
@@ -91,7 +92,7 @@ def _cache_schema_prefix(batch: pa.RecordBatch) -> bytes | None:
     gives exactly the bytes of a stream writer (not so with dictionaries); None: use the writer."""
     stream = _stream_bytes(batch)
     prefix = batch.schema.serialize().to_pybytes()
-    if stream != b"".join((prefix, batch.serialize().to_pybytes(), _END_OF_STREAM)):
+    if stream != b"".join((prefix, batch.serialize().to_pybytes(), END_OF_STREAM)):
         prefix = None
     if len(_ENCODE_CACHE) >= _CACHE_SIZE:
         _ENCODE_CACHE.pop(0)
@@ -127,11 +128,11 @@ class Layout(NamedTuple):
 
     def start_time(self, data: bytes | memoryview) -> float | None:
         """``t`` of the first row, s, read from the body (no batch built); None without it."""
-        return None if self.first_t is None else _F64(data, self.first_t)[0]
+        return None if self.first_t is None else F64(data, self.first_t)[0]
 
     def end_time(self, data: bytes | memoryview) -> float | None:
         """``t`` of the last row, s, read from the body (no batch built); None without it."""
-        return None if self.first_t is None else _F64(data, self.first_t + 8 * (self.rows - 1))[0]
+        return None if self.first_t is None else F64(data, self.first_t + 8 * (self.rows - 1))[0]
 
 
 def check_payload(data: bytes | memoryview | pa.Buffer, expected: pa.Schema, source: str | None = None) -> Layout:
@@ -186,16 +187,16 @@ def _check(
     data: bytes | memoryview | pa.Buffer, expected: pa.Schema, source: str | None
 ) -> tuple[Layout, pa.RecordBatch | None]:
     """The layout of a valid payload, and its batch when checking it had to read it."""
-    head = _head(data)
-    layout = None if head is None else _LAYOUTS.get(head)
+    found = head(data)
+    layout = None if found is None else _LAYOUTS.get(found)
     size = data.size if isinstance(data, pa.Buffer) else len(data)
     if layout is not None and layout.expected is expected and layout.size == size:
-        if layout.strings and not _strings_ok(data, layout):
+        if layout.strings and not strings_ok(data, layout.rows, layout.strings):
             raise UndecodableMessageError(
                 f"message string columns must hold valid offsets and UTF-8. Got {size} bytes that do not.", source)
         return layout, None
     buffer = data if isinstance(data, pa.Buffer) else pa.py_buffer(data)
-    prefix = _schema_message(data)
+    prefix = schema_message(data)
     known = None if prefix is None else _DECODE_CACHE.get((prefix, id(expected)))
     if prefix is None or known is None or known.expected is not expected:
         batch = _decode_in_full(buffer, prefix, expected, source)
@@ -204,34 +205,20 @@ def _check(
             batch = pa.ipc.read_record_batch(buffer.slice(len(prefix)), known.schema)
         except _READ_ERRORS as exc:
             raise _undecodable(buffer, exc, source) from None
-        for index, nulls in zip(known.required, _required_null_counts(data, len(prefix), batch, known)):
+        nulls_found = required_null_counts(data, len(prefix), batch, known.required, known.flat)
+        for index, nulls in zip(known.required, nulls_found):
             if nulls:
                 name = known.schema.names[index]
                 raise DataError(f"{schema_name(expected)} field '{name}' must have no nulls. Got {nulls}.", source)
         _validate_body(batch, buffer, source)
     layout = Layout(expected, batch.schema, len(prefix or b""), size, None, batch.num_rows)
-    strings = _string_buffers(data, len(prefix or b""), len(head or b""), batch)
-    if head is not None and prefix is not None and strings is not None:
-        layout = layout._replace(first_t=_first_t(data, len(prefix), len(head), batch), strings=strings)
+    strings = string_buffers(data, len(prefix or b""), len(found or b""), batch)
+    if found is not None and prefix is not None and strings is not None:
+        layout = layout._replace(first_t=first_t_offset(data, len(prefix), len(found), batch), strings=strings)
         if len(_LAYOUTS) >= _LAYOUT_CACHE_SIZE:
             _LAYOUTS.clear()
-        _LAYOUTS[head] = layout
+        _LAYOUTS[found] = layout
     return layout, batch
-
-
-def _head(data: bytes | memoryview | pa.Buffer) -> bytes | None:
-    """Schema message + batch message metadata (everything before the body) as bytes; None if unframed."""
-    try:
-        marker, length = _FRAME.unpack_from(data, 0)
-        start = 8 + length
-        marker2, length2 = _FRAME.unpack_from(data, start)
-    except struct.error:
-        return None
-    if marker != _CONTINUATION or marker2 != _CONTINUATION or length <= 0 or length2 <= 0:
-        return None
-    view = memoryview(data)
-    end = start + 8 + length2
-    return bytes(view[:end]) if end <= view.nbytes else None
 
 
 def _validate_body(batch: pa.RecordBatch, buffer: pa.Buffer, source: str | None) -> None:
@@ -242,115 +229,6 @@ def _validate_body(batch: pa.RecordBatch, buffer: pa.Buffer, source: str | None)
         batch.validate(full=full)
     except (*_READ_ERRORS, UnicodeDecodeError) as exc:
         raise _undecodable(buffer, exc, source) from None
-
-
-def _string_buffers(
-    data: bytes | memoryview | pa.Buffer, start: int, body: int, batch: pa.RecordBatch
-) -> tuple[tuple[int, int, int], ...] | None:
-    """Where each string column's offsets and data lie in the payload (:attr:`Layout.strings`); None when they
-    cannot be located (nested types, a buffer count that does not add up): such a layout is not remembered."""
-    kinds = [3 if pa.types.is_string(f.type) else 2 for f in batch.schema]  # buffers: validity, (offsets,) data
-    if not batch.num_rows or 3 not in kinds:
-        return ()
-    if not all(pa.types.is_string(f.type) or pa.types.is_primitive(f.type) for f in batch.schema):
-        return None
-    try:
-        buffers = _buffers_vector(data, start)
-        if not buffers or _U32(data, buffers)[0] != sum(kinds):
-            return None
-        found, index = [], 0
-        for kind in kinds:
-            if kind == 3:
-                offsets, values = (buffers + 4 + 16 * (index + k) for k in (1, 2))
-                found.append((body + _I64(data, offsets)[0], body + _I64(data, values)[0], _I64(data, values + 8)[0]))
-            index += kind
-    except struct.error:
-        return None
-    return tuple(found)
-
-
-def _strings_ok(data: bytes | memoryview | pa.Buffer, layout: Layout) -> bool:
-    """Whether every string column of a payload with a known head has offsets inside its data, in order, each at
-    the start of a UTF-8 character, and UTF-8 data (what :func:`_validate_body` checks, ~1 µs for 20 rows)."""
-    view = memoryview(data)
-    read = _offsets(layout.rows + 1)
-    for offsets_at, values_at, length in layout.strings:
-        offsets = list(read(view, offsets_at))
-        first, last = offsets[0], offsets[-1]
-        if first < 0 or last > length or offsets != sorted(offsets):
-            return False
-        try:
-            text = str(view[values_at + first : values_at + last], "utf-8")
-        except UnicodeDecodeError:
-            return False
-        if not text.isascii() and any(view[values_at + o] & 0xC0 == 0x80 for o in offsets[1:-1] if o < last):
-            return False  # a value would begin inside a character
-    return True
-
-
-@functools.lru_cache(maxsize=64)
-def _offsets(count: int) -> Callable[[memoryview, int], tuple[int, ...]]:
-    """Reader of ``count`` int32 string offsets."""
-    return struct.Struct(f"<{count}i").unpack_from
-
-
-def _buffers_vector(data: bytes | memoryview | pa.Buffer, start: int) -> int:
-    """Position of the batch message's ``RecordBatch.buffers`` vector (its length, then ``Buffer{offset, length}``
-    pairs of int64 relative to the body) in a payload whose batch message starts at ``start``; 0 when absent.
-    Raises ``struct.error`` past the end of the payload."""
-    fb = start + 8
-    root = fb + _U32(data, fb)[0]
-    header = _table_field(data, root, 2)  # Message.header: the RecordBatch table
-    if not header:
-        return 0
-    table = header + _U32(data, header)[0]
-    buffers_at = _table_field(data, table, 2)
-    return buffers_at + _U32(data, buffers_at)[0] if buffers_at else 0
-
-
-def _first_t(data: bytes | memoryview | pa.Buffer, start: int, body: int, batch: pa.RecordBatch) -> int | None:
-    """Byte offset of ``t``'s first value when ``t`` is the first column, float64, without a validity
-    buffer (checked against the batch read the slow way); else None."""
-    if not batch.num_rows or batch.schema.names[:1] != ["t"] or batch.schema.field(0).type != pa.float64():
-        return None
-    try:
-        buffers = _buffers_vector(data, start)
-        offset = body + _I64(data, buffers + 4 + 16)[0]  # buffer 1: the data of column 0
-        ok = buffers and _F64(data, offset)[0] == batch.column(0)[0].as_py()
-    except struct.error:
-        return None
-    return offset if ok and batch.column(0).null_count == 0 else None
-
-
-def _required_null_counts(
-    data: bytes | memoryview | pa.Buffer, start: int, batch: pa.RecordBatch, known: _KnownSchema
-) -> list[int]:
-    """Null counts of the required columns, read from the batch message's field nodes (a flatbuffer
-    Arrow has already verified; ~1.6 µs instead of ~5.7 µs through the columns) when the schema is
-    flat, else from the columns."""
-    if known.flat:
-        try:
-            fb = start + 8  # after the continuation marker and the metadata length
-            root = fb + _U32(data, fb)[0]
-            header = _table_field(data, root, 2)  # Message.header: the RecordBatch table
-            table = header + _U32(data, header)[0]
-            nodes_at = _table_field(data, table, 1)  # RecordBatch.nodes: [FieldNode{length, null_count}]
-            nodes = nodes_at + _U32(data, nodes_at)[0]
-            if header and nodes_at and _U32(data, nodes)[0] == len(known.schema):
-                return [_I64(data, nodes + 12 + 16 * i)[0] for i in known.required]
-        except struct.error:
-            pass
-    return [batch.column(i).null_count for i in known.required]
-
-
-def _table_field(data: bytes | memoryview | pa.Buffer, table: int, index: int) -> int:
-    """Position of field ``index`` of the flatbuffer table at ``table`` (0 when absent)."""
-    vtable = table - _I32(data, table)[0]
-    slot = 4 + 2 * index
-    if slot >= _U16(data, vtable)[0]:
-        return 0
-    offset = _U16(data, vtable + slot)[0]
-    return table + offset if offset else 0
 
 
 class _KnownSchema(NamedTuple):
@@ -370,18 +248,6 @@ def _undecodable(buffer: pa.Buffer, exc: BaseException, source: str | None) -> U
         f"message must be an Arrow IPC stream with one record batch. Got {buffer.size} bytes that are not ({reason}).",
         source,
     )
-
-
-def _schema_message(data: bytes | memoryview | pa.Buffer) -> bytes | None:
-    """The stream's first message (continuation marker, length, flatbuffer) as bytes; None if unframed."""
-    try:
-        marker, length = _FRAME.unpack_from(data, 0)
-    except struct.error:
-        return None
-    view = memoryview(data)
-    if marker != _CONTINUATION or not 0 < length <= view.nbytes - 8:
-        return None
-    return bytes(view[: 8 + length])
 
 
 def _decode_in_full(

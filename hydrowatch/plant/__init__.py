@@ -4,8 +4,8 @@ Public API: :class:`PlantParameters` (nominal coefficients, SI units), the effec
 (:data:`EFFECT_IDS`, :data:`EFFECTS`, :func:`parse_effects`, :func:`resolve_effects`) and the
 streaming, batched :class:`PlantSimulator` with the one-shot :func:`simulate`; health states
 (:mod:`~hydrowatch.plant.faults`), the algebraic steady state (:mod:`~hydrowatch.plant.steady`),
-commands (:mod:`~hydrowatch.plant.excitation`) and fleets with degradation paths
-(:mod:`~hydrowatch.plant.fleet`).
+commands (:mod:`~hydrowatch.plant.excitation`), fleets (:mod:`~hydrowatch.plant.fleet`) and degradation paths
+(:mod:`~hydrowatch.plant.wear`).
 """
 
 from hydrowatch.plant.effects import EFFECT_IDS, EFFECTS, Effects, EffectSpec, parse_effects, resolve_effects
@@ -36,7 +36,7 @@ from hydrowatch.plant.faults import (
     state_name,
     state_parameters,
 )
-from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec, scatter_parameters, simulate_states, state_seeds
+from hydrowatch.plant.fleet import Fleet, MachineSpec, scatter_parameters, simulate_states, state_seeds
 from hydrowatch.plant.parameters import PARAMETER_NAMES, PlantParameters
 from hydrowatch.plant.simulator import (
     CHANNELS,
@@ -47,6 +47,7 @@ from hydrowatch.plant.simulator import (
     zero_flow_supply_pressure,
 )
 from hydrowatch.plant.steady import SteadyState, steady_curve, steady_speed, steady_state
+from hydrowatch.plant.wear import DegradationPath
 
 __all__ = [
     "CHANNELS",

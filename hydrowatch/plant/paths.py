@@ -14,8 +14,9 @@ import numpy as np
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import Effects
 from hydrowatch.plant.faults import FAULTS, LEVELS
-from hydrowatch.plant.fleet import SHAPES, DegradationPath, Fleet, MachineSpec
+from hydrowatch.plant.fleet import Fleet, MachineSpec
 from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.plant.wear import SHAPES, DegradationPath
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
 
 FORM = "FAULT:FROM:TO:SECONDS[:linear|exp]"
@@ -33,7 +34,7 @@ def _number(text: str, field: str, spec: str) -> float:
 
 
 def parse_degradation(spec: str) -> DegradationPath:
-    """A :class:`~hydrowatch.plant.fleet.DegradationPath` from ``FAULT:FROM:TO:SECONDS[:linear|exp]``.
+    """A :class:`~hydrowatch.plant.wear.DegradationPath` from ``FAULT:FROM:TO:SECONDS[:linear|exp]``.
 
     FROM, TO: index values ≥ 0 (drop = index × 0.30, below 1); SECONDS > 0; shape ``linear`` (default) or ``exp``.
 

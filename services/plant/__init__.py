@@ -7,7 +7,7 @@ time one ``sensor_chunk`` per machine goes out, in real time (``--speed 1``), ac
 ``--states`` in turn, each with a severity drawn inside its level's band. ``--shard i/n``
 simulates only the machines of that shard, so a large fleet spreads over processes. ``--degrade
 [MACHINE=]FAULT:FROM:TO:SECONDS[:linear|exp]`` makes a machine wear along a path (as ``simulate --degrade``;
-:class:`hydrowatch.plant.fleet.Wear`), its label following the level it has reached.
+:class:`hydrowatch.plant.wear.Wear`), its label following the level it has reached.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from hydrowatch.log import event, get_logger
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import FilteredNoiseCommand, parse_volts
 from hydrowatch.plant.faults import parse_state, random_state_parameters
-from hydrowatch.plant.fleet import DegradationPath, Wear
 from hydrowatch.plant.paths import FORM, parse_degradation
+from hydrowatch.plant.wear import DegradationPath, Wear
 from hydrowatch.recording import SAMPLE_RATE_HZ
 from services.plant.stepper import SimulationThread
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import FilteredNoiseCommand
-from hydrowatch.plant.fleet import Wear
+from hydrowatch.plant.wear import Wear
 
 _POLL_S = 0.1
 """How often a blocked producer looks whether it was closed, s."""

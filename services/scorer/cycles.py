@@ -24,7 +24,7 @@ from hydrowatch.log import event, get_logger
 if TYPE_CHECKING:
     from hydrowatch.bus import Message
     from hydrowatch.training.cycle_stream import CycleJudge
-    from services.scorer import _Model
+    from services.scorer.model import _Model
 
 log = get_logger("services.scorer")
 
