@@ -104,3 +104,18 @@ def test_status_reporter_liveliness_and_heartbeat() -> None:
     assert after == []
     assert len(rows) >= 3 and rows[-1]["status"] == "stopped" and rows[0]["status"] == "starting"
     assert {r["messages_out"] for r in rows} == {7} and {r["service"] for r in rows} == {"plant"}
+
+
+def test_free_ports_lie_below_the_ephemeral_range_and_can_be_bound() -> None:
+    """free_port never hands out a port that an outgoing connection's source port could take before the service
+    binds it (hydrowatch.bus.session.free_port)."""
+    from hydrowatch.bus.session import BELOW_EPHEMERAL, _ephemeral_low
+
+    low = _ephemeral_low()
+    ports = {free_port() for _ in range(20)}
+    assert all(max(1024, low - BELOW_EPHEMERAL) <= p < low for p in ports), (low, ports)
+    assert len(ports) > 10  # chosen at random, not the same port each time
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", ports.pop()))

@@ -21,9 +21,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import socket
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import zenoh
 
@@ -169,9 +171,40 @@ def settings_from_args(args: argparse.Namespace) -> BusSettings:
     )
 
 
+EPHEMERAL_RANGE = Path("/proc/sys/net/ipv4/ip_local_port_range")
+"""Where Linux keeps the range it gives outgoing connections' source ports (32768–60999 by default)."""
+BELOW_EPHEMERAL = 12000
+"""How many ports below that range :func:`free_port` chooses from."""
+
+
+def _ephemeral_low() -> int:
+    """Lowest port the kernel hands out as an outgoing connection's source port (32768 where not readable)."""
+    try:
+        return int(EPHEMERAL_RANGE.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
 def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port free on ``host`` right now (for a private bus in tests or ``hydrowatch up``)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+    """A TCP port free on ``host`` right now (for a private bus in tests or ``hydrowatch up``).
+
+    Chosen at random among the :data:`BELOW_EPHEMERAL` ports below the kernel's ephemeral range, not by binding
+    port 0: a port from that range, released here and bound by a service seconds later, can meanwhile become the
+    source port of any outgoing connection on the host, and zenoh does not retry a listen that failed — every peer
+    then waits for a rendezvous that never comes up (reproduced by holding the port: "record did not come up"
+    after 60 s, the once-seen failure of the two-recorder-shard test in a full run).
+    """
+    low = _ephemeral_low()
+    pick = random.SystemRandom()
+    for _ in range(200):
+        port = pick.randrange(max(1024, low - BELOW_EPHEMERAL), low)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            try:
+                sock.bind((host, port))
+            except OSError:
+                continue
+            return port
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:  # every try taken: let the kernel choose
         sock.bind((host, 0))
         return int(sock.getsockname()[1])
 
