@@ -1,11 +1,12 @@
-"""A fit ends when its cost stops falling, and a converged confirmation is not polished again (issue 12,
-item 5: the analysis' time goes to simulations, one batched call per solver iteration)."""
+"""A fit ends when its cost stops falling, a converged confirmation is not polished again (issue 12,
+item 5: the analysis' time goes to simulations, one batched call per solver iteration), and an accepted
+model whose fit still moves is continued before the next round (issue 12, the settle step)."""
 
 from __future__ import annotations
 
 import pytest
 
-from hydrowatch.gap import diagnose
+from hydrowatch.gap import hypothesis
 from hydrowatch.gap.align import align
 from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
@@ -15,7 +16,7 @@ from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.simulator import simulate
 
 
-def test_a_fit_stops_once_its_cost_stops_falling_and_is_then_not_polished() -> None:
+def test_a_fit_stops_once_its_cost_stops_falling_and_is_then_not_polished_nor_settled() -> None:
     design = PlantParameters()
     unit = design.replace(Kq=design.Kq * 1.15, TL=design.TL * 0.85)
     aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
@@ -29,6 +30,12 @@ def test_a_fit_stops_once_its_cost_stops_falling_and_is_then_not_polished() -> N
     assert not cut.converged and cut.fit_cost > fit.fit_cost
     candidate = CANDIDATES[0]
     done = Refit(candidate, fit, holdout_cost(aligned, fit.prediction))
-    assert diagnose._polish(aligned, done) is done
-    polished = diagnose._polish(aligned, Refit(candidate, cut, holdout_cost(aligned, cut.prediction)))
+    assert hypothesis.polish(aligned, done) is done
+    polished = hypothesis.polish(aligned, Refit(candidate, cut, holdout_cost(aligned, cut.prediction)))
     assert polished.fit.converged and polished.fit.fit_cost < cut.fit_cost
+    # An accepted model is settled before the next round: continued while its fit still moves, as it is
+    # once converged (a later candidate must not be credited with the accepted effect's missing iterations).
+    assert hypothesis.settle(aligned, fit) is fit
+    settled = hypothesis.settle(aligned, cut)
+    assert settled.converged and settled.fit_cost < cut.fit_cost
+    assert settled.values["Kq"] == pytest.approx(unit.Kq, rel=0.01)

@@ -7,6 +7,7 @@ Synthetic predictions on a 24 s time base (the judge test's layout in test_gap_a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
@@ -77,3 +78,39 @@ def test_an_effect_the_later_one_explains_is_dropped_and_one_still_needed_is_kep
     diagnosis = Diagnosis(current, accepted=[_trial("shaft_compliance", current), _trial("gear_backlash", current)])
     assert stepwise._prune(aligned, diagnosis, current, 0.03, 2.0, 10.0) is current  # type: ignore[arg-type]
     assert len(diagnosis.accepted) == 2 and diagnosis.dropped == []
+
+
+def test_a_round_judged_against_an_unconverged_model_is_judged_again_after_the_absorb(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """When no candidate passes but one paid through the plant alone (_absorb: the current fit had not
+    converged), the candidates get another round against the absorbed model; when nothing is absorbed the
+    diagnosis ends (issue 12, dev population 2035: the round after a backlash fit still moving was the
+    last, and the air it had screened against that fit was never tried again)."""
+    @dataclass(frozen=True)
+    class Fit:  # what diagnose reads of a model before any candidate is refitted
+        prediction: np.ndarray
+        effects: dict
+        z: np.ndarray
+
+    aligned = _aligned()
+    unconverged = Fit(TRUTH, {"gear_backlash": {}}, np.zeros(20))
+    absorbed = Fit(TRUTH + 0.5 * RIPPLE, {"gear_backlash": {}}, np.zeros(20))
+    candidates = [c for c in CANDIDATES if c.id in ("entrained_air", "transport_delay")]
+    screened = []
+
+    def scanned_out(data: AlignedRecording, base: Fit, c: object, **kwargs: object) -> None:
+        screened.append(base.prediction[2, 10])
+        return None  # no magnitude lowers the cost: no trial, nothing passes
+
+    monkeypatch.setattr(stepwise, "refit", scanned_out)
+    monkeypatch.setattr(stepwise, "residual_test", lambda *args: SimpleNamespace(fails=True))
+    monkeypatch.setattr(stepwise, "_absorb", lambda a, current, *args: absorbed if current is unconverged else current)
+    diagnosis = stepwise.diagnose(aligned, unconverged, candidates)  # type: ignore[arg-type]
+    assert diagnosis.final is absorbed
+    assert len(diagnosis.rounds) == 2
+    # Round 2 screened against the absorbed model (its own prediction), round 1 against the unconverged one.
+    assert screened == [unconverged.prediction[2, 10]] * 2 + [absorbed.prediction[2, 10]] * 2
+
+    monkeypatch.setattr(stepwise, "_absorb", lambda a, current, *args: current)
+    diagnosis = stepwise.diagnose(aligned, unconverged, candidates)  # type: ignore[arg-type]
+    assert diagnosis.final is unconverged and len(diagnosis.rounds) == 1

@@ -26,13 +26,16 @@ accepts the best one only if all of these hold (gap-method.md, step 4):
 
 An accepted model is polished (its joint fit continued to convergence) before the next round, so a
 later candidate is not credited with what more iterations of the earlier fit would have found
-(the false second effects of round 1: quadratic drag "explaining" an unconverged backlash fit).
+(the false second effects of round 1: quadratic drag "explaining" an unconverged backlash fit); the
+winner's fit, if still moving after the polish, is continued for as many iterations as a later
+confirmation gets (:func:`hypothesis.settle`).
 When no candidate passes but one paid only through the plant parameters refitted with it (its
-effect indistinguishable from absent), the current model takes those values (:func:`_absorb`).
+effect indistinguishable from absent), the current model takes those values (:func:`_absorb`) and,
+since that round was judged against an unconverged model, the candidates get another round.
 After an effect joins a model that holds others, an earlier one that it makes redundant is dropped
 (:func:`_prune`, the backward step of a stepwise selection).
-The loop stops when no candidate passes, when the held-out residual of every sensor is white, or
-when ``max_effects`` are in the model.
+The loop stops when no candidate passes and none was absorbed, when the model passes the discovery
+test (discovery.py), or when ``max_effects`` are in the model (at most 2·``max_effects`` rounds).
 """
 
 from __future__ import annotations
@@ -55,7 +58,7 @@ from hydrowatch.gap.candidates import (
     untestable,
 )
 from hydrowatch.gap.discovery import residual_test
-from hydrowatch.gap.hypothesis import recalibrate
+from hydrowatch.gap.hypothesis import polish, recalibrate, settle
 from hydrowatch.gap.locate import noise_std, whiteness
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -65,10 +68,6 @@ log = get_logger(__name__)
 
 BLOCK_SAMPLES = 200
 """Block length of the held-out bootstrap, samples (1 s)."""
-
-POLISH_NFEV = 20
-"""Solver iterations that continue an accepted model's joint fit before the next round (fewer when its
-cost stops falling first, calibrate.STALL_DROP; none when the confirmation converged)."""
 
 ABSORB_NFEV = 10
 """Solver iterations of :func:`_absorb`'s refit."""
@@ -234,16 +233,6 @@ strong effect's analysis before this rule; the winner is the passing confirmatio
 held-out gain, which a runner-up screened at under half the leader's gain is unlikely to be)."""
 
 
-def _polish(aligned: AlignedRecording, refit: Refit) -> Refit:
-    """The confirmed fit continued for POLISH_NFEV more solver iterations; as it is when its fit
-    converged already (its cost stopped falling, calibrate.STALL_DROP: polishing only continues a fit
-    its iteration limit cut short)."""
-    if refit.fit.converged:
-        return refit
-    fit = fit_output_error(aligned, refit.fit.space, refit.fit.z, max_nfev=POLISH_NFEV)
-    return Refit(refit.candidate, fit, holdout_cost(aligned, fit.prediction))
-
-
 def _without(aligned: AlignedRecording, current: OutputErrorFit, effect_id: str) -> OutputErrorFit:
     """The current model refitted without one of its effects: the same plant and other effects'
     coordinates as the start, PRUNE_NFEV solver iterations."""
@@ -354,7 +343,7 @@ def diagnose(
     testable = [c for c in candidates if c.label not in diagnosis.unrevealable]
     current = calibrated
     while len(diagnosis.accepted) < max_effects and len(diagnosis.rounds) < 2 * max_effects:
-        if diagnosis.accepted and not residual_test(aligned, current.prediction, len(current.z)).fails:
+        if diagnosis.rounds and not residual_test(aligned, current.prediction, len(current.z)).fails:
             break
         present = set(current.effects) | {c.id for c in testable if c.label in diagnosis.dropped}
         pool = [c for c in testable if c.id not in present]
@@ -397,9 +386,14 @@ def diagnose(
         diagnosis.rounds.append(trials)
         passed = [t for t in trials if t.passed]
         if not passed:
-            current = _absorb(aligned, current, trials, min_gain, n_se)
-            break
-        polished = {id(t): _polish(aligned, t.refit) for t in passed}
+            absorbed = _absorb(aligned, current, trials, min_gain, n_se)
+            if absorbed is current:
+                break
+            # The round was judged against a model whose fit had not converged (a confirmation paid through
+            # the plant alone): judge the remaining candidates again against the absorbed model.
+            current = absorbed
+            continue
+        polished = {id(t): polish(aligned, t.refit) for t in passed}
         if len(passed) > 1:
             # Rivals are compared polished: an unconverged confirmation (a backlash fit that used every
             # iteration) lost to compliance on dev population 7, and won the next round by 98 %.
@@ -408,7 +402,7 @@ def diagnose(
         else:
             winner = passed[0]
         diagnosis.accepted.append(winner)
-        current = _prune(aligned, diagnosis, polished[id(winner)].fit, min_gain, n_se, min_bic)
+        current = _prune(aligned, diagnosis, settle(aligned, polished[id(winner)].fit), min_gain, n_se, min_bic)
     diagnosis.final = current
     return diagnosis
 
