@@ -64,11 +64,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.machine}: commissioned from {fleet.version} on {unit['seconds']:.0f} s "
               f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
               f"-> {args.out} ({bundle.version})")
-        if unit["supply"] != "identified":
-            print("  the recording does not determine the relief and pump; for alert levels at high load, commission "
-                  "on 5 minutes of filtered noise over the command range (the identification command of "
-                  "`hydrowatch simulate`)")
-        elif unit.get("left_to_prior"):
+        if unit["supply"] != "identified" or unit.get("relief_spread", 0.0) > 0.0:
+            print("  the recording does not determine the relief (its halves disagree): the load states follow each "
+                  "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "
+                  "tell them apart, commission on 5 minutes of filtered noise over the command range (the "
+                  "identification command of `hydrowatch simulate`)")
+        if unit["supply"] == "identified" and unit.get("left_to_prior"):
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
             if "Dp" in unit["left_to_prior"]:
