@@ -149,9 +149,10 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
     def quick(data: AlignedRecording, base: Fit, c: object, *, plant_free: tuple[str, ...], **kwargs: object) -> Refit:
         screened.append((c.id, len(plant_free)))  # type: ignore[attr-defined]
         # Partners alone: every candidate screens worse than the model. The whole plant free: the air explains the
-        # ripple, the delay does no better than the plant alone.
+        # ripple, the delay a little of it (the plant alone nothing).
         air = c.id == "entrained_air" and plant_free == CALIBRATED  # type: ignore[attr-defined]
-        prediction = (TRUTH + RIPPLE if air else TRUTH - RIPPLE if len(plant_free) < 18 else TRUTH)[:, : data.t.size]
+        prediction = (TRUTH + RIPPLE if air else TRUTH - RIPPLE if len(plant_free) < 18 else TRUTH + 0.01 * RIPPLE
+                      )[:, : data.t.size]
         fit = Fit(prediction, {c.id: c.effect()}, np.zeros(1), ci95={f"{c.id}.{c.free[0]}": (-1.0, 1.0)})  # type: ignore
         return Refit(c, fit, holdout_cost(data, prediction))  # type: ignore[arg-type]
 
@@ -169,9 +170,10 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
     diagnosis = stepwise.diagnose(aligned, current, candidates)  # type: ignore[arg-type]
     assert [t.refit.candidate.id for t in diagnosis.accepted] == ["entrained_air"]
     assert diagnosis.final is found
-    assert confirmed == ["entrained_air"]  # only in the second look, the delay's gain not above the plant's own
+    # Only in the second look; the delay beats the plant alone there by less than an effect must (min_gain 3 %).
+    assert confirmed == ["entrained_air"]
     first, second = diagnosis.rounds
     assert all(t.gain < -0.5 and not t.passed for t in first)
     assert sorted(screened[:2]) == [("entrained_air", 1), ("transport_delay", 1)]
     assert sorted(screened[2:]) == [("entrained_air", 18), ("transport_delay", 18)]
-    assert second[0].passed and second[0].gain > 0.5 and not second[1].passed
+    assert second[0].passed and second[0].gain > 0.5 and not second[1].passed and 0 < second[1].gain < 0.03
