@@ -177,3 +177,11 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
     assert sorted(screened[:2]) == [("entrained_air", 1), ("transport_delay", 1)]
     assert sorted(screened[2:]) == [("entrained_air", 18), ("transport_delay", 18)]
     assert second[0].passed and second[0].gain > 0.5 and not second[1].passed and 0 < second[1].gain < 0.03
+
+    # Alone, the delay (beating the plant alone by ~1.5 %, less than the 3 % an effect must gain) gets no full
+    # calibration in the second look, and the diagnosis ends with nothing named.
+    confirmed.clear()
+    delay = [c for c in candidates if c.id == "transport_delay"]
+    diagnosis = stepwise.diagnose(aligned, current, delay)  # type: ignore[arg-type]
+    assert confirmed == [] and diagnosis.accepted == [] and len(diagnosis.rounds) == 2
+    assert 0.0 < diagnosis.rounds[1][0].gain < 0.03
