@@ -7,16 +7,19 @@ Synthetic predictions on a 24 s time base (the judge test's layout in test_gap_a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from hydrowatch.gap import diagnose as stepwise
+from hydrowatch.gap import screen as screening
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.candidates import CANDIDATES, Refit
+from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
 from hydrowatch.gap.diagnose import Diagnosis, Trial
+from hydrowatch.gap.space import CALIBRATED
+from hydrowatch.plant.parameters import PlantParameters
 
 N = 24 * 200
 T = np.arange(N) / 200.0
@@ -37,6 +40,19 @@ def _model(aligned: AlignedRecording, prediction: np.ndarray, k: int, effects: t
     r = (aligned.measured - prediction) / aligned.scale[:, None]
     return SimpleNamespace(prediction=prediction, z=np.zeros(k), effects=dict.fromkeys(effects, {}),
                            fit_cost=float(np.sum(r[:, aligned.fit_mask] ** 2) / aligned.fit_mask.sum()))
+
+
+@dataclass(frozen=True)
+class Fit:
+    """What diagnose reads of a model (an OutputErrorFit's fields)."""
+
+    prediction: np.ndarray
+    effects: dict
+    z: np.ndarray
+    space: SimpleNamespace = field(default_factory=lambda: SimpleNamespace(plant_free=CALIBRATED, effect_free=()))
+    parameters: PlantParameters = field(default_factory=PlantParameters)
+    fit_cost: float = 1.0
+    ci95: dict | None = None
 
 
 def _trial(effect: str, fit: SimpleNamespace) -> Trial:
@@ -86,12 +102,6 @@ def test_a_round_judged_against_an_unconverged_model_is_judged_again_after_the_a
     converged), the candidates get another round against the absorbed model; when nothing is absorbed the
     diagnosis ends (issue 12, dev population 2035: the round after a backlash fit still moving was the
     last, and the air it had screened against that fit was never tried again)."""
-    @dataclass(frozen=True)
-    class Fit:  # what diagnose reads of a model before any candidate is refitted
-        prediction: np.ndarray
-        effects: dict
-        z: np.ndarray
-
     aligned = _aligned()
     unconverged = Fit(TRUTH, {"gear_backlash": {}}, np.zeros(20))
     absorbed = Fit(TRUTH + 0.5 * RIPPLE, {"gear_backlash": {}}, np.zeros(20))
@@ -102,15 +112,76 @@ def test_a_round_judged_against_an_unconverged_model_is_judged_again_after_the_a
         screened.append(base.prediction[2, 10])
         return None  # no magnitude lowers the cost: no trial, nothing passes
 
-    monkeypatch.setattr(stepwise, "refit", scanned_out)
+    monkeypatch.setattr(screening, "refit", scanned_out)
     monkeypatch.setattr(stepwise, "residual_test", lambda *args: SimpleNamespace(fails=True))
     monkeypatch.setattr(stepwise, "_absorb", lambda a, current, *args: absorbed if current is unconverged else current)
     diagnosis = stepwise.diagnose(aligned, unconverged, candidates)  # type: ignore[arg-type]
     assert diagnosis.final is absorbed
-    assert len(diagnosis.rounds) == 2
-    # Round 2 screened against the absorbed model (its own prediction), round 1 against the unconverged one.
-    assert screened == [unconverged.prediction[2, 10]] * 2 + [absorbed.prediction[2, 10]] * 2
+    assert len(diagnosis.rounds) == 3
+    # Round 2 screened against the absorbed model (its own prediction), round 1 against the unconverged one;
+    # round 2 absorbed nothing, so its candidates got the second look against the absorbed model.
+    assert screened == [unconverged.prediction[2, 10]] * 2 + [absorbed.prediction[2, 10]] * 4
 
     monkeypatch.setattr(stepwise, "_absorb", lambda a, current, *args: current)
+    screened.clear()
     diagnosis = stepwise.diagnose(aligned, unconverged, candidates)  # type: ignore[arg-type]
-    assert diagnosis.final is unconverged and len(diagnosis.rounds) == 1
+    # Nothing absorbed and the model still fails the discovery test: one second look, then the end.
+    assert diagnosis.final is unconverged and len(diagnosis.rounds) == 2
+    assert screened == [unconverged.prediction[2, 10]] * 4
+
+
+def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_the_whole_plant_free(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """When a round passes nothing, absorbs nothing, and the model still fails the discovery test, the
+    candidates are screened again with every calibrated plant parameter free, against the current model refitted
+    the same way without them, and the best ``confirm`` of those that beat it get the full calibration (issue 12,
+    dev population 2035: the air screened negative with βe alone free, and passed every rule once confirmed)."""
+    aligned = _aligned()
+    fit_cost = float(np.sum(((aligned.measured - TRUTH) / aligned.scale[:, None])[:, aligned.fit_mask] ** 2)
+                     / aligned.fit_mask.sum())
+    current = Fit(TRUTH, {"gear_backlash": {}}, np.zeros(20), fit_cost=fit_cost)
+    found = Fit(TRUTH + RIPPLE, {"gear_backlash": {}, "entrained_air": {"alpha": 0.004}}, np.zeros(21),
+                fit_cost=fit_cost / 3, ci95={"entrained_air.alpha": (0.003, 0.005)})
+    candidates = [c for c in CANDIDATES if c.id in ("entrained_air", "transport_delay")]
+    screened: list[tuple[str, int]] = []
+    confirmed: list[str] = []
+
+    def quick(data: AlignedRecording, base: Fit, c: object, *, plant_free: tuple[str, ...], **kwargs: object) -> Refit:
+        screened.append((c.id, len(plant_free)))  # type: ignore[attr-defined]
+        # Partners alone: every candidate screens worse than the model. The whole plant free: the air explains the
+        # ripple, the delay a little of it (the plant alone nothing).
+        air = c.id == "entrained_air" and plant_free == CALIBRATED  # type: ignore[attr-defined]
+        prediction = (TRUTH + RIPPLE if air else TRUTH - RIPPLE if len(plant_free) < 18 else TRUTH + 0.01 * RIPPLE
+                      )[:, : data.t.size]
+        fit = Fit(prediction, {c.id: c.effect()}, np.zeros(1), ci95={f"{c.id}.{c.free[0]}": (-1.0, 1.0)})  # type: ignore
+        return Refit(c, fit, holdout_cost(data, prediction))  # type: ignore[arg-type]
+
+    def full(aligned_: AlignedRecording, current_: Fit, s: Refit, *args: object, **kwargs: object) -> Refit:
+        confirmed.append(s.candidate.id)
+        return Refit(s.candidate, found, holdout_cost(aligned_, found.prediction))  # type: ignore[arg-type]
+
+    monkeypatch.setattr(screening, "refit", quick)
+    monkeypatch.setattr(screening, "fit_output_error", lambda data, space, **kw: Fit(TRUTH[:, : data.t.size], {}, 0))
+    monkeypatch.setattr(stepwise, "recalibrate", full)
+    monkeypatch.setattr(stepwise, "polish", lambda a, refit: refit)
+    monkeypatch.setattr(stepwise, "settle", lambda a, fit: fit)
+    monkeypatch.setattr(stepwise, "residual_test", lambda a, prediction, k: SimpleNamespace(
+        fails=prediction is not found.prediction))
+    diagnosis = stepwise.diagnose(aligned, current, candidates)  # type: ignore[arg-type]
+    assert [t.refit.candidate.id for t in diagnosis.accepted] == ["entrained_air"]
+    assert diagnosis.final is found
+    # Only in the second look; the delay beats the plant alone there by less than an effect must (min_gain 3 %).
+    assert confirmed == ["entrained_air"]
+    first, second = diagnosis.rounds
+    assert all(t.gain < -0.5 and not t.passed for t in first)
+    assert sorted(screened[:2]) == [("entrained_air", 1), ("transport_delay", 1)]
+    assert sorted(screened[2:]) == [("entrained_air", 18), ("transport_delay", 18)]
+    assert second[0].passed and second[0].gain > 0.5 and not second[1].passed and 0 < second[1].gain < 0.03
+
+    # Alone, the delay (beating the plant alone by ~1.5 %, less than the 3 % an effect must gain) gets no full
+    # calibration in the second look, and the diagnosis ends with nothing named.
+    confirmed.clear()
+    delay = [c for c in candidates if c.id == "transport_delay"]
+    diagnosis = stepwise.diagnose(aligned, current, delay)  # type: ignore[arg-type]
+    assert confirmed == [] and diagnosis.accepted == [] and len(diagnosis.rounds) == 2
+    assert 0.0 < diagnosis.rounds[1][0].gain < 0.03
