@@ -216,3 +216,25 @@ def test_an_uneven_effect_is_judged_by_its_consistency_not_by_its_largest_blocks
     half = np.where(np.arange(n) % 400 < 200, 1.0, -1.0) * 0.5
     noise_fit = judge(aligned, current, SimpleNamespace(fit=model(truth + half * noise, 10)))
     assert abs(noise_fit["consistency"]) < 2.0
+
+
+def test_the_analysis_runs_blas_on_one_thread_whatever_the_caller_set(monkeypatch) -> None:
+    """The report must not depend on OpenBLAS's thread count (docs/gap.md, "Fifth pass"): a caller's two BLAS threads
+    are one inside the analysis."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import hydrowatch.gap.analysis as A
+
+    seen = []
+
+    def calibrate(*args, **kwargs):
+        seen.extend(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(A, "calibrate", calibrate)
+    rec, _ = concealed(11, None, seconds=10.0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+        with pytest.raises(RuntimeError, match="stop here"):
+            GapAnalyser().fit(rec)
+    assert outside and max(outside) == 2 and seen and max(seen) == 1, (outside, seen)

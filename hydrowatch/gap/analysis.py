@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from hydrowatch.errors import NotFittedError
 from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
@@ -100,7 +101,17 @@ class GapAnalyser:
         self.correct_unknown = correct_unknown
 
     def fit(self, recording: Recording) -> GapAnalyser:
-        """Run the analysis on one recording; returns self."""
+        """Run the analysis on one recording; returns self.
+
+        BLAS runs on one thread throughout (as the tests and ``BoxJenkins.fit`` do): with OpenBLAS's own threads the
+        same recording gave another report (dev 2035 pair: the round-1 backlash gain 0.4146 failed a rule with two
+        BLAS threads, 0.4149 passed with one; docs/gap.md, "Fifth pass"), and its threads compete with the analysis's
+        own (``HYDROWATCH_THREADS``) on a busy host.
+        """
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._fit(recording)
+
+    def _fit(self, recording: Recording) -> GapAnalyser:
         nominal = self.nominal or PlantParameters()
         pool = select_candidates(self.candidates)
         aligned = align(recording)
