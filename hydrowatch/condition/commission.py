@@ -112,12 +112,12 @@ chooses: a recording showing one is refused from the whole recording's fit, befo
 MIN_HEALTHY = 0.9
 """Smallest share of the recording's own windows the commissioned model must read ``healthy``."""
 WHOLE_FIT = "whole recording (its halves disagree)"
+"""``Commissioning.supply`` when the trained unit's supply failed the self-check and the whole recording's fit
+passed it."""
 RELIEF_SPREAD = PRIOR.get("Pc", DEFAULT_PRIOR)
 """Log-scale half-width of the relief on a unit whose recording's halves disagreed (:data:`SPLIT_AGREEMENT`) or whose
 supply was kept: the build spread between units (the identification's prior). Its load states then follow each
 window's relief (:mod:`hydrowatch.condition.relief`)."""
-"""``Commissioning.supply`` when the trained unit's supply failed the self-check and the whole recording's fit
-passed it."""
 
 
 @dataclass(frozen=True)
@@ -341,8 +341,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
                                  f"present, or the recording is not of this kind of unit.{hint}")
     event(_log, "unit commissioned", logging.INFO, seconds=round(seconds), healthy=round(healthy, 3), supply=supply,
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
-    spread = moved.features_.relief_spread_
-    return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out, spread)
+    return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out,
+                         moved.features_.relief_spread_)
 
 
 def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str,
