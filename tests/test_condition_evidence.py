@@ -15,7 +15,8 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
-from hydrowatch.condition.model import POOLED_EXCESS
+from hydrowatch.condition.evidence import trailing_count
+from hydrowatch.condition.model import CLEAR_FACTOR, POOLED_EXCESS
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 
@@ -113,3 +114,38 @@ def test_pooled_excess_is_saved_and_older_directories_load(trained, tmp_path):
     (tmp_path / "m" / "condition_model.json").write_text(json.dumps({"format": 99}))
     with pytest.raises(DataError, match="format"):
         ConditionModel.load(tmp_path / "m")
+
+
+def test_a_pool_reads_unknown_only_when_a_window_did_or_its_excess_is_clear(trained):
+    # Pooling never makes a verdict worse (issue 11 item 2): a known state that misfits by a little in every window
+    # (a severity just outside its band on another unit or day) is rejected by no window alone but by the pooled
+    # mean; it keeps its name unless one of the pooled windows read unknown alone or the excess is clear
+    # (CLEAR_FACTOR × pooled_excess).
+    _, model = trained
+    states = list(model.features_.states_)
+    relations = len(model.features_.relations_)
+    k = states.index("pump_leak_warning")
+
+    def row(excess: float) -> np.ndarray:
+        band = np.full((relations, len(states)), 50.0)
+        band[:, k] = 1.0 + excess / relations  # state k misses by ``excess`` summed over the relations
+        return np.concatenate([band.ravel(), band.ravel()])
+
+    limit = model.pooled_excess_
+    middle, clear = 0.5 * (1.0 + CLEAR_FACTOR) * limit, 1.1 * CLEAR_FACTOR * limit
+    assert relations + middle < model.open_set_.thresholds_[k]  # no window of the first kind is unknown alone
+    rows = np.stack([row(middle), row(middle), row(clear)])
+    assert not model.alone_unknown(rows[:1]).any()
+
+    def states_of(support: list[int]) -> list[str]:
+        return [v.state for v in model.judge_pooled(rows, rows, rows, windows=np.full(3, 12),
+                                                    support=np.array(support))]
+
+    assert states_of([0, 1, 0]) == ["pump_leak_warning", "unknown", "unknown"]
+    assert states_of([0, 0, 0])[0] == "pump_leak_warning"
+    assert model.judge_pooled(rows, rows, rows, windows=np.full(3, 12))[0].state == "unknown"  # not counted: as before
+    # the batch form counts the windows that read unknown alone over the same trailing windows it pools
+    flags = np.array([True, False, False, True, False])
+    ratios = np.ones((5, 2))
+    ratios[2] = np.nan  # an invalid window is neither pooled nor counted
+    np.testing.assert_array_equal(trailing_count(flags, ratios, 2), [1, 1, 0, 1, 1])

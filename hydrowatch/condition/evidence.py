@@ -19,7 +19,9 @@ differ. The pooled evidence of the last ``n_windows`` valid windows of one machi
   the level half is also evidence (each state's named level fills the missing channel) and is
   averaged like the band half (:attr:`EvidenceLayout.prior_once`);
 - for the open-set rule, the arithmetic mean of F[r, k]: a known state must explain every
-  window, and one window that no known state explains (F ≫ 1 for all) is enough to reject;
+  window, and one window that no known state explains (F ≫ 1 for all) is enough to reject
+  (a pool none of whose windows read ``unknown`` alone is rejected only well beyond the limit:
+  :data:`~hydrowatch.condition.model.CLEAR_FACTOR`, :func:`trailing_count`);
 - in both, one machine has one severity: with ŝ_i window i's free estimate of state k's own
   fault and w_i its curvature d(MSE)/d(s²) over the relation's free MSE, the windows share
   s̄ = clip(Σ w_i·ŝ_i / Σ w_i, k's box) (the minimiser of the quadratic misfit model
@@ -164,6 +166,26 @@ def pooled_windows(features: np.ndarray, n_windows: int) -> np.ndarray:
     n = _check_n(n_windows)
     valid = np.all(np.isfinite(np.asarray(features, dtype=np.float64)), axis=1)
     return np.where(valid, np.minimum(np.cumsum(valid), n), 0)
+
+
+def trailing_count(flags: np.ndarray, features: np.ndarray, n_windows: int) -> np.ndarray:
+    """How many of each row's trailing ``n_windows`` valid windows (the rows :func:`trailing_evidence` pools) have
+    ``flags`` set, shape (n,) (0 for an invalid row).
+
+    ``flags`` (n,) per window, e.g. whether the window alone read ``unknown``
+    (:meth:`~hydrowatch.condition.model.ConditionModel.alone_unknown`); ``features`` the rows, NaN rows invalid.
+    """
+    n = _check_n(n_windows)
+    f = np.asarray(features, dtype=np.float64)
+    flag = np.asarray(flags, dtype=bool).reshape(-1)
+    if f.ndim != 2 or flag.shape != (f.shape[0],):
+        raise DataError(f"flags must have one value per row of features {f.shape}. Got shape {flag.shape}.")
+    valid = np.flatnonzero(np.all(np.isfinite(f), axis=1))
+    total = np.concatenate([[0], np.cumsum(flag[valid])])
+    pos = np.arange(1, valid.size + 1)
+    out = np.zeros(f.shape[0], dtype=np.int64)
+    out[valid] = total[pos] - total[np.maximum(pos - n, 0)]
+    return out
 
 
 class EvidenceSmoother:

@@ -105,10 +105,11 @@ class ParityJudge:
                                                                   estimates)):
                 indices[i] = index
             reasons = model.features_.window_reasons(raw[mine])
-            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
-            for i, why in zip(mine.tolist(), reasons):
+            unknown_alone = model.alone_unknown(found[:, :width])
+            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
+            for i, why, novel in zip(mine.tolist(), reasons, unknown_alone.tolist()):
                 row, machine = rows[i], machines[i]
-                alone = (row[:width], row[:width], row[:width], 1)
+                alone = (row[:width], row[:width], row[:width], 1, int(novel))
                 if self.smoothing == 1:
                     evidence.append(alone)
                     continue
@@ -117,7 +118,7 @@ class ParityJudge:
                     # the oil temperature came or went (its boxes differ): the pool starts again
                     pool = self._pools[machine] = ConditionStream(model, n_windows=self.smoothing,
                                                                   temperature=bool(known[i]))
-                pool.update_features(row)
+                pool.update_features(row, novel)
                 got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
                 evidence.append(got if got is not None else alone)
             for i, v in zip(mine.tolist(), judge_streams(model, self.smoothing, evidence, reasons)):
