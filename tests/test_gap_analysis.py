@@ -81,7 +81,9 @@ def test_acceptance_needs_an_interval_that_excludes_absence() -> None:
                                                                 T_start=40.0))
     # a dead time or sensor lag far shorter than a sample interval is not told from absence (fresh population 2061,
     # backlash + air: a 0.15 ms delay passed with an interval excluding 0), one of a few samples is
-    assert not by_id["transport_delay"].distinct_from_absence(fit("transport_delay", (1.2e-4, 1.8e-4), tau=1.5e-4))
+    # (intervals come as numpy floats; the verdict goes into the JSON report as a plain bool)
+    short = fit("transport_delay", (np.float64(1.2e-4), np.float64(1.8e-4)), tau=1.5e-4)
+    assert by_id["transport_delay"].distinct_from_absence(short) is False
     assert by_id["transport_delay"].distinct_from_absence(fit("transport_delay", (0.004, 0.006), tau=0.005))
     assert not by_id["transport_delay"].distinct_from_absence(fit("transport_delay", (0.0005, 0.006), tau=0.003))
     assert not by_id["sensor_lowpass (speed)"].distinct_from_absence(fit("sensor_lowpass (speed)", (5e-4, 9e-4),

@@ -104,7 +104,7 @@ class Candidate:
         tell from no effect)."""
         lo, hi = fit.ci95[f"{self.id}.{self.free[0]}"]
         if self.timescale:
-            return lo > RESOLVABLE_SAMPLES / SAMPLE_RATE_HZ
+            return bool(lo > RESOLVABLE_SAMPLES / SAMPLE_RATE_HZ)
         absent = fit.effects[self.id][self.absent] if isinstance(self.absent, str) else self.absent
         return not lo <= absent <= hi
 
