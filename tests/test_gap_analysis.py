@@ -69,7 +69,8 @@ def test_acceptance_needs_an_interval_that_excludes_absence() -> None:
     by_id = {c.label: c for c in CANDIDATES}
 
     def fit(effect: str, ci: tuple[float, float], **values: float) -> SimpleNamespace:
-        return SimpleNamespace(ci95={f"{effect}.{by_id[effect].free[0]}": ci}, effects={effect: values})
+        c = by_id[effect]
+        return SimpleNamespace(ci95={f"{c.id}.{c.free[0]}": ci}, effects={c.id: values})
 
     assert by_id["quadratic_drag"].distinct_from_absence(fit("quadratic_drag", (0.004, 0.02), Kd=0.01))
     assert not by_id["quadratic_drag"].distinct_from_absence(fit("quadratic_drag", (-0.001, 0.02), Kd=0.01))
@@ -78,6 +79,15 @@ def test_acceptance_needs_an_interval_that_excludes_absence() -> None:
     assert by_id["valve_saturation"].distinct_from_absence(fit("valve_saturation", (0.45, 0.55), x_max=0.5))
     assert not by_id["thermal_drift"].distinct_from_absence(fit("thermal_drift", (35.0, 50.0), T_end=45.0,
                                                                 T_start=40.0))
+    # a dead time or sensor lag far shorter than a sample interval is not told from absence (fresh population 2061,
+    # backlash + air: a 0.15 ms delay passed with an interval excluding 0), one of a few samples is
+    # (intervals come as numpy floats; the verdict goes into the JSON report as a plain bool)
+    short = fit("transport_delay", (np.float64(1.2e-4), np.float64(1.8e-4)), tau=1.5e-4)
+    assert by_id["transport_delay"].distinct_from_absence(short) is False
+    assert by_id["transport_delay"].distinct_from_absence(fit("transport_delay", (0.004, 0.006), tau=0.005))
+    assert not by_id["transport_delay"].distinct_from_absence(fit("transport_delay", (0.0005, 0.006), tau=0.003))
+    assert not by_id["sensor_lowpass (speed)"].distinct_from_absence(fit("sensor_lowpass (speed)", (5e-4, 9e-4),
+                                                                         tau=7e-4))
     # a travel limit above every command the recording gives acts on overshoots alone: not accepted
     limit = SimpleNamespace(parameters=PlantParameters(), effects={"valve_saturation": {"x_max": 0.83}})
     assert not by_id["valve_saturation"].exercised(limit, np.linspace(0.0, 4.0, 1000))

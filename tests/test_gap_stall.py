@@ -39,3 +39,22 @@ def test_a_fit_stops_once_its_cost_stops_falling_and_is_then_not_polished_nor_se
     settled = hypothesis.settle(aligned, cut)
     assert settled.converged and settled.fit_cost < cut.fit_cost
     assert settled.values["Kq"] == pytest.approx(unit.Kq, rel=0.01)
+
+
+def test_an_accepted_model_still_moving_after_one_continuation_is_continued_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fit that one continuation of a confirmation's budget leaves still moving is continued again (issue 12,
+    fresh population 2061's pair: a backlash fit still fell 7× in its one settle, and round 2 credited its
+    next iterations to a 0.15 ms transport delay)."""
+    design = PlantParameters()
+    unit = design.replace(Kq=design.Kq * 1.25, TL=design.TL * 0.75)
+    aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
+    space = ModelSpace(design, {}, ("Kq", "TL"))
+    monkeypatch.setattr(hypothesis, "JOINT_NFEV", 2)
+    cut = fit_output_error(aligned, space, max_nfev=2)
+    once = fit_output_error(aligned, space, cut.z, max_nfev=2)
+    assert not once.converged
+    settled = hypothesis.settle(aligned, cut)
+    assert settled.fit_cost < 0.9 * once.fit_cost
+    assert abs(settled.values["Kq"] / unit.Kq - 1.0) < abs(once.values["Kq"] / unit.Kq - 1.0)
+

@@ -18,6 +18,7 @@ from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
 from hydrowatch.gap.space import CALIBRATED, ModelSpace
 from hydrowatch.plant.effects import EFFECT_IDS, EFFECTS, SENSOR_NAMES
 from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.recording import SAMPLE_RATE_HZ
 
 SCREEN_SECONDS = 14.0
 """Length of the record the screening fits use, s (ranking hypotheses needs no more)."""
@@ -40,6 +41,17 @@ DRIFT_TAU_START = 60.0
 DRIFT_RELIABLE_TAUS = 2.0
 """Record length, in warm-up time constants, for the drift model to cut the calibrated error by 30 %
 (benchmark: 600 s for τ ≤ 300 s; the catalog's default τ = 600 s needs 20 min)."""
+
+
+RESOLVABLE_SAMPLES = 0.25
+"""Shortest dead time or sensor lag, in sample intervals, that counts as a discovery (a quarter of the 5 ms
+interval at 200 Hz). The command is held and the sensors read once per interval; a dead time far shorter than
+that only shifts the held command's switch within it, which on the recorded band is the first-order term of the
+valve's own lag (Δ(2ζv/ωv) = τ, a partner the calibration frees) and of the sensors' read timing. Issue 12
+(fresh population 2061, backlash + entrained air): round 2 confirmed a transport delay of τ 0.15 ms (0.03
+of an interval) with a held-out gain of 0.41 — what its joint fit bought was more iterations of a backlash fit
+still moving, not the delay (docs/gap.md, "Seventh pass"). The bench's concealed delays are 5–20 ms and
+lags 10–50 ms, 4× and more above this floor."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,9 @@ class Candidate:
     absent : float or str
         Value of ``free[0]`` at which the effect vanishes (or the name of the effect parameter
         that value equals): its 95 % interval must exclude it.
+    timescale : bool
+        ``free[0]`` is a time, s (a dead time, a sensor lag): its 95 % interval must also lie above
+        RESOLVABLE_SAMPLES sample intervals, the shortest the recording tells from absence.
     """
 
     id: str
@@ -74,6 +89,7 @@ class Candidate:
     fixed: dict[str, float] = field(default_factory=dict)
     sensors: tuple[str, ...] = SENSOR_NAMES
     absent: float | str = 0.0
+    timescale: bool = False
 
     @property
     def label(self) -> str:
@@ -83,8 +99,12 @@ class Candidate:
         return self.id
 
     def distinct_from_absence(self, fit: OutputErrorFit) -> bool:
-        """Whether the 95 % interval of ``free[0]`` in ``fit`` excludes the value at which the effect vanishes."""
+        """Whether the 95 % interval of ``free[0]`` in ``fit`` excludes the value at which the effect vanishes
+        (for a time scale: every time below RESOLVABLE_SAMPLES sample intervals, which the recording cannot
+        tell from no effect)."""
         lo, hi = fit.ci95[f"{self.id}.{self.free[0]}"]
+        if self.timescale:
+            return bool(lo > RESOLVABLE_SAMPLES / SAMPLE_RATE_HZ)
         absent = fit.effects[self.id][self.absent] if isinstance(self.absent, str) else self.absent
         return not lo <= absent <= hi
 
@@ -113,7 +133,7 @@ def _grid(lo: float, hi: float, n: int) -> tuple[float, ...]:
 
 def _lowpass(sensor: int) -> Candidate:
     return Candidate("sensor_lowpass", ("tau",), _grid(0.002, 0.15, 8), ("omega_v", "JL"),
-                     {"sensor": float(sensor)}, (SENSOR_NAMES[sensor],))
+                     {"sensor": float(sensor)}, (SENSOR_NAMES[sensor],), timescale=True)
 
 
 _MECHANICAL = ("speed", "torque")
@@ -123,7 +143,7 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate("valve_deadband", ("d",), _grid(0.01, 0.25, 8), ("Kq",)),
     Candidate("valve_saturation", ("x_max",), tuple(np.linspace(0.3, 0.8, 8)), ("Kq", "Pc"), absent=1.0),
     Candidate("valve_hysteresis", ("r",), _grid(0.01, 0.4, 7), ("omega_v",)),
-    Candidate("transport_delay", ("tau",), _grid(0.001, 0.04, 8), ("omega_v",)),
+    Candidate("transport_delay", ("tau",), _grid(0.001, 0.04, 8), ("omega_v",), timescale=True),
     Candidate("entrained_air", ("alpha",), _grid(0.002, 0.15, 10), ("beta_e",)),
     Candidate("pump_ripple", ("a1", "a2"), _grid(0.01, 0.25, 5), sensors=("flow", "torque")),
     Candidate("thermal_drift", ("T_end", "T_start", "tau"), tuple(np.linspace(20.0, 100.0, 6)), ("Ctm", "Cp"),

@@ -18,7 +18,8 @@ accepts the best one only if all of these hold (gap-method.md, step 4):
   fitting blocks, n_eff the sample count shrunk by the residual's lag-1 autocorrelation
   (a prewhitening correction).
 
-* the 95 % interval of the effect's main parameter excludes the value at which the effect vanishes,
+* the 95 % interval of the effect's main parameter excludes the value at which the effect vanishes
+  (a dead time or sensor lag: every value below a quarter of a sample interval, candidates.RESOLVABLE_SAMPLES),
   and the recording reaches the fitted effect (:meth:`Candidate.exercised`: a travel limit above
   every command is rejected);
 * from the second round on, the sensor whose held-out error falls most is one the catalog says the
@@ -27,8 +28,8 @@ accepts the best one only if all of these hold (gap-method.md, step 4):
 An accepted model is polished (its joint fit continued to convergence) before the next round, so a
 later candidate is not credited with what more iterations of the earlier fit would have found
 (the false second effects of round 1: quadratic drag "explaining" an unconverged backlash fit); the
-winner's fit, if still moving after the polish, is continued for as many iterations as a later
-confirmation gets (:func:`hypothesis.settle`).
+winner's fit, if still moving after the polish, is continued as many iterations at a time as a later
+confirmation gets until it stops moving, at most hypothesis.SETTLE_RUNS times (:func:`hypothesis.settle`).
 When no candidate passes but one paid only through the plant parameters refitted with it (its
 effect indistinguishable from absent), the current model takes those values (:func:`_absorb`) and,
 since that round was judged against an unconverged model, the candidates get another round.
