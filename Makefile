@@ -32,8 +32,12 @@ browser:
 	        timeout 900 apt-get install -y -q chromium >/dev/null 2>&1; }; }; } || \
 	  echo "no Chromium (apt-get install chromium): the browser tests will be skipped"
 
+# Two pytest-xdist workers (one per core of the CI machine); tests/conftest.py keeps each module on one worker and the
+# modules that start services on the same one. `python -m pytest` alone runs the suite in one process.
+TEST_WORKERS ?= 2
+
 unit: $(STAMP) browser
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test: lint typecheck unit
 

@@ -53,6 +53,20 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM) -> int:
     return proc.wait(timeout=60)
 
 
+def wait_handles_sigterm(proc: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Wait until ``proc`` has installed its SIGTERM handler (a service does so once it has imported what it needs and
+    starts its work; Linux's ``/proc/<pid>/status`` shows the signals it catches, ``SigCgt``)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        assert proc.poll() is None, f"exited with {proc.returncode} before handling SIGTERM"
+        caught = next(line.split()[1] for line in Path(f"/proc/{proc.pid}/status").read_text().splitlines()
+                      if line.startswith("SigCgt:"))
+        if int(caught, 16) >> (signal.SIGTERM - 1) & 1:
+            return
+        assert time.monotonic() < deadline, f"no SIGTERM handler after {timeout:.0f} s"
+        time.sleep(0.05)
+
+
 def read_machines(folder: Path) -> dict[str, tuple[np.ndarray, list[Recovery]]]:
     """Samples per machine (concatenated t of every file, in file order) and each file's recovery."""
     found: dict[str, tuple[list, list]] = {}
@@ -316,7 +330,10 @@ def test_trainer_answers_a_stop_at_once_even_mid_training(tmp_path: Path) -> Non
     trainer = start("services.trainer", "--data", tmp_path, "--out", tmp_path / "model", "--every", 30,
                     "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}")
     try:
-        time.sleep(4)  # importing and training take longer than this: the stop comes mid-training
+        # a fixed 4 s from the start sent SIGTERM before the handler was there when imports took longer (two test
+        # workers and a benchmark on 2 cores: exit -15); training takes far longer than the 2 s after it
+        wait_handles_sigterm(trainer)
+        time.sleep(2)  # the stop comes mid-training
         began = time.monotonic()
         assert stop(trainer) == 0
         assert time.monotonic() - began < 5.0

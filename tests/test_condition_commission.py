@@ -55,6 +55,22 @@ def models(units) -> list[ConditionModel]:
             for k, (unit, _) in enumerate(units[:2])]
 
 
+@pytest.fixture(scope="module")
+def duty_healthy(units) -> np.ndarray:
+    """Unit 1's healthy windows on 300 s of a duty cycle 0.5–3.5 V (seed 41), read-only: several tests share them."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    healthy.setflags(write=False)
+    return healthy
+
+
+@pytest.fixture(scope="module")
+def duty_fit(duty_healthy, models):
+    """identify_unit on :func:`duty_healthy` from the first model's trained unit (tests copy it, never change it)."""
+    f = models[0].features_
+    return identify_unit(duty_healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+
+
 def accuracy(model: ConditionModel, test: dict[str, np.ndarray], smoothing: int) -> dict[str, float]:
     return {s: float(np.mean(model.predict(w, smoothing) == s)) for s, w in test.items()}
 
@@ -77,10 +93,10 @@ def test_pooling_never_makes_a_units_verdicts_worse_and_healthy_reads_healthy(un
         assert pooled["healthy"] >= 0.99 and single["healthy"] >= 0.99
 
 
-def test_a_commissioned_unit_beats_the_uncommissioned_one(units, models) -> None:
+def test_a_commissioned_unit_beats_the_uncommissioned_one(units, models, duty_healthy) -> None:
     fleet = models[0]
-    unit, day = units[1]
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    _, day = units[1]
+    healthy = duty_healthy
     done = commission(fleet, healthy)
     assert done.seconds == pytest.approx(300.0) and done.healthy_share >= 0.9
     test = windows(STATES, day, duty_cycle(120, (0.5, 3.5), seed=42), 42)
@@ -90,13 +106,11 @@ def test_a_commissioned_unit_beats_the_uncommissioned_one(units, models) -> None
     assert fleet.features_.nominal_ is not done.model.features_.nominal_  # the fleet model is left as it was
 
 
-def test_a_supply_that_fails_the_self_check_gives_way_to_the_whole_recordings_fit(units, models, monkeypatch) -> None:
+def test_a_supply_that_fails_the_self_check_gives_way_to_the_whole_recordings_fit(models, duty_healthy, duty_fit,
+                                                                                  monkeypatch) -> None:
     """The trained unit's supply kept (halves disagree) but wrong for this unit: the whole fit takes over if it
     reads the recording healthy; if neither does, the refusal says what to record."""
-    unit, _ = units[1]
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
-    f = models[0].features_
-    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    healthy, truth = duty_healthy, duty_fit
     wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
     monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, C.KEPT, 0.5))
     done = commission(models[0], healthy)
@@ -132,13 +146,11 @@ def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half
     assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
 
 
-def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(units, models, monkeypatch) -> None:
+def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(models, duty_healthy, duty_fit,
+                                                                            monkeypatch) -> None:
     """The held-out error chose the whole fit but it reads the unit's own healthy windows as a fault: the trained
     unit's supply takes over when that reads them healthy."""
-    unit, _ = units[1]
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
-    f = models[0].features_
-    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    healthy, truth = duty_healthy, duty_fit
     wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
     monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, "identified", 0.5, 3.0))
     done = commission(models[0], healthy)
@@ -146,16 +158,16 @@ def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(unit
     assert done.summary()["held_out_ratio"] == 3.0
 
 
-def test_the_pump_draw_bounds_the_capacity_and_caps_a_pump_left_to_its_prior(units, models) -> None:
+def test_the_pump_draw_bounds_the_capacity_and_caps_a_pump_left_to_its_prior(units, models, duty_healthy,
+                                                                            duty_fit) -> None:
     """drawn_flow never exceeds the pump's capacity Dp·ωp; a fit that left Dp to its prior (the trained unit's pump)
     is given at most (1 + CAPACITY_MARGIN) × the draw, one that informed Dp is left alone."""
     unit, _ = units[1]
     capacity = unit.Dp * unit.omega_p
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+    healthy = duty_healthy
     drawn = drawn_flow(healthy, unit)
     assert 0.7 * capacity < drawn <= capacity, drawn / capacity  # measured: 0.86 on this duty cycle
-    f = models[0].features_
-    fit = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    f, fit = models[0].features_, duty_fit
     names, cov = fit.covariance["valve"]
     i = names.index("Dp")
     big = fit.parameters.replace(Dp=1.3 * unit.Dp * unit.omega_p / fit.parameters.omega_p)
