@@ -12,9 +12,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from hydrowatch.bus.service import service_main
 from hydrowatch.errors import DataError
@@ -60,12 +63,23 @@ def _train_once(args: argparse.Namespace, settings: list, failure: list[DataErro
         failure.append(DataError(f"training not logged or registered in MLflow: {str(exc).splitlines()[0][:300]}"))
 
 
+def _end_now() -> NoReturn:
+    """End the process at once with status 0, its output flushed: the abandoned training thread may be inside compiled
+    code (torch, numba), and the interpreter's finalisation then aborts the process ("terminate called without an
+    active exception", SIGABRT, seen under `hydrowatch up` with the trainer stopped mid-training)."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     """Train (repeatedly with ``--every``) until ``stop``; returns 0, or 2 when a single training fails.
 
     Each training runs in a worker thread, so that a stop request is answered at once even mid-training (tens of
-    seconds): the training in progress is then abandoned. Nothing is lost by that: the recordings stay, and a
-    training's MLflow run is opened only after it has trained (:func:`hydrowatch.training.tracking.log_training`).
+    seconds): the training in progress is then abandoned and the process ends there, status 0 (:func:`_end_now`).
+    Nothing is lost by that: the recordings stay, and a training's MLflow run is opened only after it has trained
+    (:func:`hydrowatch.training.tracking.log_training`).
     """
     settings = settings_list_from_args(args)
     while not stop.is_set():
@@ -76,7 +90,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             pass
         if worker.is_alive():
             event(log, "training abandoned: stop requested", logging.WARNING)
-            return 0
+            _end_now()
         if failure:
             if args.every <= 0:
                 raise failure[0]
