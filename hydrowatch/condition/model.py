@@ -214,7 +214,7 @@ class ConditionModel:
         if smoothing == 1:
             return self.judge_evidence(ratios, ratios, reasons), band
         layout = self.features_.layout_for(windows)
-        support = trailing_count(self.alone_unknown(ratios), ratios, smoothing)
+        support = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
                                  pooled_windows(rows, smoothing), support), band
 
