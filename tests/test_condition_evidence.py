@@ -15,7 +15,7 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
-from hydrowatch.condition.evidence import trailing_count
+from hydrowatch.condition.evidence import SEVERITY_TOLERANCE, trailing_count
 from hydrowatch.condition.model import CLEAR_FACTOR, POOLED_EXCESS
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -47,18 +47,19 @@ def test_trailing_evidence_pools_valid_windows_only():
 
 def test_one_machine_has_one_severity():
     # 2 states, 1 relation: state 1's own fault; windows agree on it (0.30), or differ within the tolerance
-    # (0.28 / 0.32) or beyond it (0.22 / 0.38).
-    layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.2, 0.4]], [[0, 0], [0.29, 0.31]]]))
+    # or 0.035 beyond it.
+    layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.1, 0.5]], [[0, 0], [0.29, 0.31]]]))
     ratios = np.ones((2, 4))  # band (2 states) and level (2 states) ratios
     agree = np.column_stack([ratios, [[0.0, 0.30], [0.0, 0.30]], [[0.0, 100.0], [0.0, 100.0]]])
     g, a = trailing_evidence(agree, 2, layout)
     np.testing.assert_allclose(a[1], 1.0)
     close, differ = agree.copy(), agree.copy()
-    close[:, 5], differ[:, 5] = [0.28, 0.32], [0.22, 0.38]
+    delta = SEVERITY_TOLERANCE * 0.30
+    close[:, 5], differ[:, 5] = [0.30 - 0.9 * delta, 0.30 + 0.9 * delta], [0.30 - delta - 0.035, 0.30 + delta + 0.035]
     g, a = trailing_evidence(close, 2, layout)
-    np.testing.assert_allclose(a[1], 1.0)  # 0.02 from the common 0.30 is within δ = 0.15 · 0.30: no cost
+    np.testing.assert_allclose(a[1], 1.0)  # within δ = SEVERITY_TOLERANCE · 0.30 of the common 0.30: no cost
     g, a = trailing_evidence(differ, 2, layout)
-    # Band box [0.2, 0.4] holds both alone; together each may sit at most 0.045 from 0.30: 100·0.035² more.
+    # Band box [0.1, 0.5] holds both alone; together each may sit at most δ from 0.30: 100·0.035² more.
     # The level box [0.29, 0.31] held them at its edges already, inside the tolerance: nothing more.
     np.testing.assert_allclose(a[1, [1, 3]], [1.0 + 100 * 0.035**2, 1.0])
     with pytest.raises(DataError):

@@ -10,10 +10,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hydrowatch.condition import held as held_module
 from hydrowatch.condition import parity
 from hydrowatch.condition import unit as unit_module
 from hydrowatch.condition.commission import left_to_prior
-from hydrowatch.condition.unit import held_noise, identify_unit
+from hydrowatch.condition.held import held_noise
+from hydrowatch.condition.unit import identify_unit
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import level_severity
@@ -63,7 +65,7 @@ def test_the_supply_identified_from_a_noisy_duty_cycle_is_not_biased(development
     assert level_severity("load", "warning", fit.parameters) / truth == pytest.approx(1.0, abs=0.1)
     # the duty cycle informs the relief (Pc to ±2 %) but not the pump's spare capacity (Dp stays at its prior)
     assert "Dp" in left_to_prior(fit) and "Pc" not in left_to_prior(fit) and "Kq" not in left_to_prior(fit)
-    monkeypatch.setattr(unit_module, "MIN_HELD", 10**9)  # no noise measurement: the unweighted fit of before
+    monkeypatch.setattr(held_module, "MIN_HELD", 10**9)  # no noise measurement: the unweighted fit of before
     unweighted = identify_unit(healthy, trained)
     assert level_severity("load", "warning", unweighted.parameters) / truth > 1.2
 
@@ -87,3 +89,26 @@ def test_the_valve_fit_leaves_the_local_minimum_on_the_relief_ridge(monkeypatch)
     assert fit.parameters.Pc / unit.Pc == pytest.approx(1.0, abs=0.06)
     assert level_severity("load", "alert", fit.parameters) / truth == pytest.approx(1.0, abs=0.06)
     assert abs(level_severity("load", "alert", single.parameters) / truth - 1.0) > 0.1
+
+
+def test_the_brake_smoothing_speed_is_identified_only_from_a_recording_that_comes_near_standstill() -> None:
+    """ωs shapes the brake torque only within a few ωs of standstill (Eq. 7): a 0.5–3.5 V duty cycle never gets
+    there, and its fit moved ωs to the search limit (population seed 2039, unit 4 against unit 1: × 4.5); filtered
+    noise 0–4 V passes through standstill and identifies it."""
+    rng = np.random.default_rng(2039)
+    units = []
+    for _ in range(4):
+        units.append(random_unit(rng))
+        later_day(units[-1], rng)
+    trained, unit = units[0], units[3]
+    load = {"load": unit_module.RELATION_PARAMETERS["load"]}
+    duty = raw_windows(unit, duty_cycle(300.0, (0.5, 3.5), seed=55_040), 55_039)
+    assert np.abs(duty[:, :, 2]).min() > unit_module.STANDSTILL * trained.omega_s
+    kept = identify_unit(duty, trained, parameters=load)
+    assert kept.parameters.omega_s == trained.omega_s  # was 0.949 (trained 0.212, the unit 0.228)
+    assert "omega_s" in left_to_prior(kept) and "TL" not in left_to_prior(kept)
+    assert kept.parameters.TL == pytest.approx(unit.TL, rel=0.02)
+    noise = raw_windows(unit, filtered_noise(300.0, (0, 4), seed=55_040), 55_039)
+    found = identify_unit(noise, trained, parameters=load)
+    assert "omega_s" not in left_to_prior(found)
+    assert found.parameters.omega_s == pytest.approx(unit.omega_s, rel=0.5)

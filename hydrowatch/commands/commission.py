@@ -76,4 +76,7 @@ def run(args: argparse.Namespace) -> int:
                 print("  the pump was never at its limit: its capacity is taken as at most 1.05 x what the "
                       "recording drew from it; for pump_leak levels at higher demand add a few seconds of steps to "
                       "the top of the command range")
+            if "omega_s" in unit["left_to_prior"]:
+                print("  the recording never came near standstill: the brake's low-speed shape (omega_s) is the "
+                      "trained unit's; a few seconds of commands near 0 V would identify it")
     return 0

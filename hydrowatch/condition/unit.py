@@ -48,6 +48,7 @@ from scipy.optimize import least_squares
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.condition.estimates import CHANNELS, LPM_TO_M3S, WIDTH, check_windows, invalid_reasons
+from hydrowatch.condition.held import held_mask, noise_where
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -83,6 +84,15 @@ while the fit started from the truth reached Pc 1.15 × with Kr 0.97 × and 7652
 SCREEN_TOLERANCE = 1e-3
 """Relative tolerance (ftol, xtol) to which each of several starts is fitted before the best is finished
 (:func:`_fit`); the basins along the relief's ridge differ by 5–25 % in the criterion."""
+STANDSTILL = 3.0
+"""The brake's sign term TL·tanh(ω/ωs) (Eq. 7) differs from ±TL by more than 0.5 % only within 3 ωs of standstill ..."""
+MIN_STANDSTILL = 200
+"""... so ωs is identified only from a recording with at least this many samples (1 s) of |ω| < :data:`STANDSTILL` × ωs;
+otherwise it keeps the given nominal (:func:`free_parameters`). A healthy duty cycle of 0.5–3.5 V never comes near
+standstill (its slowest sample 0.1–5 rad/s, 0–4 samples within 3 ωs; 300 s of filtered noise 0–4 V: 800–1300), yet its
+fit moved ωs to the search limit (× 4.5) on 5 of 19 units of seed 2039, buying 1–2 % of the load relation's residual
+with a term that only acts near standstill, where the model then failed: a motor leak's stall in a 0.5 V hold read
+``unknown`` (load severity 2.0, the brake torque thrice the unit's; docs/unseen-units.md)."""
 MAX_WINDOWS = 60
 """Windows used for the valve relation (evenly spaced among the valid ones): its supply line is integrated per
 trial. 60 windows (300 s, a commissioning recording); measured on duty cycles, 40 left the valve gain and relief
@@ -229,6 +239,26 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     return residual
 
 
+def free_parameters(relation: str, names: Sequence[str], speed: np.ndarray, p: PlantParameters) -> tuple[str, ...]:
+    """The parameters of ``relation`` that a recording of gearbox speeds ``speed`` (rad/s) can move from ``p``:
+    ``names`` without ωs unless the recording comes near standstill (:data:`MIN_STANDSTILL`)."""
+    if relation != "load" or "omega_s" not in names:
+        return tuple(names)
+    if int(np.sum(np.abs(speed) < STANDSTILL * p.omega_s)) >= MIN_STANDSTILL:
+        return tuple(names)
+    return tuple(n for n in names if n != "omega_s")
+
+
+def _with_prior(names: Sequence[str], fitted: Sequence[str], covariance: np.ndarray) -> np.ndarray:
+    """The posterior covariance over ``names``: ``covariance`` for those ``fitted``, the prior τ² for the rest (a
+    parameter the recording could not move is reported as left to its prior, :func:`~hydrowatch.condition.commission.
+    left_to_prior`)."""
+    out = np.diag([PRIOR.get(n, DEFAULT_PRIOR) ** 2 for n in names])
+    idx = [list(names).index(n) for n in fitted]
+    out[np.ix_(idx, idx)] = covariance
+    return out
+
+
 def _valid_signals(windows: np.ndarray, sensors: Sequence[str], viscosity_coefficient: float, what: str) -> _Signals:
     """SI signals of the valid windows among raw ``windows`` (m, n, 4 or 5), the leakage factor from the oil
     temperature when present; :class:`DataError` naming ``what`` with fewer than 2 valid windows."""
@@ -245,45 +275,6 @@ def _valid_signals(windows: np.ndarray, sensors: Sequence[str], viscosity_coeffi
     return _Signals(v, q * LPM_TO_M3S, s, t, leak)
 
 
-HOLD_SETTLE = 50
-"""Samples (0.25 s) a command must have been held before a sample counts as held (:func:`held_noise`): the shaft's
-hydraulic resonance (~28 Hz) has rung out by then."""
-MIN_HELD = 2000
-"""Held samples (10 s) needed to measure the sensor noise; fewer, and the valve relation is not weighted for
-errors in variables (:func:`_valve_relation`)."""
-
-
-def _held(voltage: np.ndarray) -> np.ndarray:
-    """Where a signal's second difference (m, n − 2) lies in a held stretch: the command has not moved for
-    :data:`HOLD_SETTLE` samples."""
-    moved = np.concatenate([np.ones((voltage.shape[0], 1), dtype=bool), np.diff(voltage, axis=-1) != 0.0], axis=-1)
-    count = np.cumsum(moved, axis=-1)
-    since = count - np.concatenate([np.zeros((voltage.shape[0], HOLD_SETTLE), dtype=count.dtype),
-                                    count[:, :-HOLD_SETTLE]], axis=-1)
-    held = np.zeros((voltage.shape[0], voltage.shape[1] - 2), dtype=bool)
-    held[:, HOLD_SETTLE - 2:] = since[:, HOLD_SETTLE:] == 0
-    return held
-
-
-def _noise(x: np.ndarray, held: np.ndarray) -> float | None:
-    """1.4826·MAD / √6 of the second differences of ``x`` where ``held`` (:func:`_held`); None if too few."""
-    d = np.diff(x, n=2, axis=-1)[held]
-    if d.size < MIN_HELD:
-        return None
-    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
-
-
-def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
-    """White-noise standard deviation of signals (m, n) measured where the command ``voltage`` (m, n) is held.
-
-    Where the command has not moved for :data:`HOLD_SETTLE` samples the plant is at rest and the signal's second
-    difference is its noise alone: σ = 1.4826·MAD / √6 (a white sequence's second difference has variance 6σ²).
-    Elsewhere the plant's own fast content (spool, line, resonance) would count as noise: on filtered noise 0–4 V
-    the second differences of P̂L read 6.5× its true noise. None with fewer than :data:`MIN_HELD` held samples.
-    """
-    return _noise(x, _held(voltage))
-
-
 def _valve_relation(s: _Signals) -> Relation:
     """The valve relation's block residual, L/min, and each block's noise standard deviation (flow noise and
     load-pressure noise carried through the relation: errors in variables), None when the recording holds too
@@ -296,13 +287,14 @@ def _valve_relation(s: _Signals) -> Relation:
     attenuation bias of errors in variables: on a development unit's healthy duty cycle (0.5–3.5 V, torque noise
     0.43 N·m) Pc came out ×2.2 with a relief that never opens, while the same recording without torque noise gave
     the load-warning level to 0.3 %. Weighting each block by its own spread, √(σ_Q² + (∂Q̂/∂P̂L)²·σ_PL²) (Deming
-    regression; ∂Q̂/∂P̂L by a 0.1 bar step, σ by :func:`held_noise`), removes the preference. Rich excitation (filtered
+    regression; ∂Q̂/∂P̂L by a 0.1 bar step, σ by :func:`~hydrowatch.condition.held.held_noise`), removes the preference.
+    Rich excitation (filtered
     noise over the whole range) moves P̂L far more than its noise, the bias is small there, and it has no holds to
     measure the noise on: it is fitted unweighted, as before.
     """
     weight = float(np.sum(np.r_[0.5, np.ones(parity.BLOCK - 1), 0.5] ** 2)) / parity.BLOCK**2  # trapezoid block mean
-    held = _held(s.voltage)
-    flow = _noise(s.flow, held)
+    held = held_mask(s.voltage)
+    flow = noise_where(s.flow, held)
     flow_noise = 0.0 if flow is None else flow * M3S_TO_LPM * np.sqrt(weight)
     zero = np.zeros(s.flow.shape[0])
     step = 1e4  # Pa
@@ -322,7 +314,7 @@ def _valve_relation(s: _Signals) -> Relation:
     def spread(p: PlantParameters) -> np.ndarray:
         pl, spool, q = predicted(p)
         slope = (parity.valve_flow_prediction(spool, pl + step, p, None, zero, s.leak) - q) / step
-        pl_noise = (_noise(pl, held) or 0.0) * np.sqrt(weight)
+        pl_noise = (noise_where(pl, held) or 0.0) * np.sqrt(weight)
         return np.sqrt(flow_noise**2 + (parity.block_means(slope) * M3S_TO_LPM * pl_noise) ** 2)
 
     return residual, (None if flow is None else spread)
@@ -370,10 +362,11 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
         if not needs <= have:
             continue
         names = tuple(parameters.get(relation, ()))
-        if not names:
+        free = free_parameters(relation, names, signals.speed, p)
+        if not free:
             continue
-        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(names, p, make(signals), start)
-        fit.covariance[relation] = (names, cov)
+        p, fit.rms_before[relation], fit.rms_after[relation], cov = _fit(free, p, make(signals), start)
+        fit.covariance[relation] = (names, _with_prior(names, free, cov))
     base = nominal if nominal is not None else PlantParameters()
     fit.factors.update({n: getattr(p, n) / getattr(base, n) for r in fit.rms_before for n in parameters[r]})
     result = UnitFit(p, fit.factors, fit.rms_before, fit.rms_after, fit.windows, fit.covariance)

@@ -1,0 +1,44 @@
+"""Sensor noise measured where the command is held: the plant is at rest there, and a signal's second difference is
+its noise alone (the unit's identification weights the valve relation by it, :mod:`hydrowatch.condition.unit`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+HOLD_SETTLE = 50
+"""Samples (0.25 s) a command must have been held before a sample counts as held (:func:`held_noise`): the shaft's
+hydraulic resonance (~28 Hz) has rung out by then."""
+MIN_HELD = 2000
+"""Held samples (10 s) needed to measure the sensor noise; fewer, and the valve relation is not weighted for
+errors in variables (:func:`_valve_relation`)."""
+
+
+def held_mask(voltage: np.ndarray) -> np.ndarray:
+    """Where a signal's second difference (m, n − 2) lies in a held stretch: the command has not moved for
+    :data:`HOLD_SETTLE` samples."""
+    moved = np.concatenate([np.ones((voltage.shape[0], 1), dtype=bool), np.diff(voltage, axis=-1) != 0.0], axis=-1)
+    count = np.cumsum(moved, axis=-1)
+    since = count - np.concatenate([np.zeros((voltage.shape[0], HOLD_SETTLE), dtype=count.dtype),
+                                    count[:, :-HOLD_SETTLE]], axis=-1)
+    held = np.zeros((voltage.shape[0], voltage.shape[1] - 2), dtype=bool)
+    held[:, HOLD_SETTLE - 2:] = since[:, HOLD_SETTLE:] == 0
+    return held
+
+
+def noise_where(x: np.ndarray, held: np.ndarray) -> float | None:
+    """1.4826·MAD / √6 of the second differences of ``x`` where ``held`` (:func:`held_mask`); None if too few."""
+    d = np.diff(x, n=2, axis=-1)[held]
+    if d.size < MIN_HELD:
+        return None
+    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
+
+
+def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
+    """White-noise standard deviation of signals (m, n) measured where the command ``voltage`` (m, n) is held.
+
+    Where the command has not moved for :data:`HOLD_SETTLE` samples the plant is at rest and the signal's second
+    difference is its noise alone: σ = 1.4826·MAD / √6 (a white sequence's second difference has variance 6σ²).
+    Elsewhere the plant's own fast content (spool, line, resonance) would count as noise: on filtered noise 0–4 V
+    the second differences of P̂L read 6.5× its true noise. None with fewer than :data:`MIN_HELD` held samples.
+    """
+    return noise_where(x, held_mask(voltage))
