@@ -1,8 +1,7 @@
 """A fit ends when its cost stops falling, a converged confirmation is not polished again (issue 12,
 item 5: the analysis' time goes to simulations, one batched call per solver iteration), and an accepted
 model whose fit still moves is continued before the next round (issue 12, the settle step); a continuation reuses
-the simulations that ended its fit, and a confirmation may start from its screening fit's plant (issue 12, eighth
-pass)."""
+the simulations that ended its fit (issue 12, eighth pass)."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ import pytest
 from hydrowatch.gap import calibrate, hypothesis
 from hydrowatch.gap.align import align, simulate_sensors
 from hydrowatch.gap.calibrate import fit_output_error
-from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost, scan_magnitude
+from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
@@ -93,16 +92,3 @@ def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(m
     fit_output_error(again, space, cut.z, max_nfev=3)
     assert sum(models) == with_reuse + 3
 
-
-def test_a_confirmation_may_start_from_the_plant_its_screening_fit_refitted() -> None:
-    """The screened model (its plant parameters refitted with the effect) is one of the starts a confirmation's
-    magnitude scan compares (issue 12, item 5): it wins when it fits the record best."""
-    design = PlantParameters()
-    unit = design.replace(Kq=design.Kq * 1.25, TL=design.TL * 0.75)
-    aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
-    base = fit_output_error(aligned, ModelSpace(design, {}, ()))
-    deadband = next(c for c in CANDIDATES if c.id == "valve_deadband")
-    start, value, change = scan_magnitude(aligned, base, deadband, [design], screened=unit)
-    assert start is unit and value == min(deadband.scan) and change < 0.0
-    start, _, _ = scan_magnitude(aligned, base, deadband, [design])
-    assert start is not unit

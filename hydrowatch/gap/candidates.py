@@ -237,7 +237,7 @@ Scan = tuple[PlantParameters, float, float]
 
 def scan_magnitude(
     aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters],
-    *, plain_origins: bool = True, screened: PlantParameters | None = None,
+    *, plain_origins: bool = True,
 ) -> Scan:
     """The plant parameters (the base model's or one of ``origins``) and starting value of the
     candidate's first free parameter at the lowest-cost grid point, and that cost minus the base
@@ -247,14 +247,11 @@ def scan_magnitude(
     partners set back to their origin values, matters when the calibration without the effect
     wandered far to mimic it (a dead time bent into a slow spool, entrained air into a low βe).
     ``plain_origins=False``: only the base model and the base with its partners at the origins' values.
-    ``screened``: one more start, the plant parameters of the candidate's screening fit (refitted with the effect).
     """
     name = candidate.free[0]
     starts = [base.parameters, *(origins if plain_origins else ())]
     starts += [base.parameters.replace(**{k: getattr(o, k) for k in candidate.partners})
                for o in origins if candidate.partners]
-    if screened is not None and screened != base.parameters:
-        starts.append(screened)
     grid = []
     for params in starts:
         for v in candidate.scan:

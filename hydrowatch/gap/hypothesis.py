@@ -36,13 +36,10 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     every plant parameter and every free effect parameter estimated, with the accepted effects and the
     candidate's screened values as the effects' starting point.
 
-    Its start is the best of three kinds, picked by a magnitude scan of the effect on the whole record
+    Its start is the better of two kinds, picked by a magnitude scan of the effect on the whole record
     (:func:`scan_magnitude`, one batched simulation): the design values with the static parameters
-    fitted (stage 1 of the calibration, the effect held at its screened value), the current model
-    (as it is, and with the candidate's partner parameters set to stage 1's values), or the screened
-    model (the plant parameters its screening fit refitted with the effect; issue 12, item 5: on the dev
-    2035 backlash + air pair it won for compliance, backlash, air and drag, and their confirmations took
-    210, 600, 504, 110 simulations where the current start took 316, 600, 567, 113, to the same costs). The design start
+    fitted (stage 1 of the calibration, the effect held at its screened value), or the current model
+    (as it is, and with the candidate's partner parameters set to stage 1's values). The design start
     matters when the calibration without the effect bent several parameters to mimic it (a dead time
     into a slow spool, a low brake torque and a high viscous load: a local refit from there stayed in
     that valley); the current start when the effect's fit needs the dynamics right to move at all (gear
@@ -66,25 +63,22 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     scanned = replace(c, scan=(*c.scan, screened_effect[c.free[0]]),
                       fixed={**c.fixed, **{k: v for k, v in screened_effect.items() if k != c.free[0]}})
     prior = current.space.prior is not None
-    screened_plant = screened.fit.parameters
     if design_start:
         static, prediction = static_stage(aligned, design, free=free, effects=effects, max_nfev=STAGE_NFEV,
                                           pump=pump if "Dp" in free else None)
-        start, value, _ = scan_magnitude(aligned, current, scanned, [static], screened=screened_plant)
+        start, value, _ = scan_magnitude(aligned, current, scanned, [static])
         weight = prior_weight(aligned, prediction) if prior else 0.0
     else:
         static = None
-        start, value, _ = scan_magnitude(aligned, current, scanned, [design], plain_origins=False,
-                                         screened=screened_plant)
+        start, value, _ = scan_magnitude(aligned, current, scanned, [design], plain_origins=False)
         weight = current.space.prior_weight
     effects[c.id] = scanned.effect(**{c.free[0]: value})
     if c.id == "stribeck_friction":
         effects[c.id]["Tc"] = min(effects[c.id]["Tc"], value)
     space = ModelSpace(start, effects, free, effect_free, design if prior else None, weight)
     fit = fit_output_error(aligned, space, max_nfev=JOINT_NFEV)
-    kind = "design" if start is static else "screened" if start is screened_plant else "current"
-    event(log, "hypothesis start", effect=c.label, start=kind, value=round(value, 6),
-          screened_value=round(screened_effect[c.free[0]], 6))
+    event(log, "hypothesis start", effect=c.label, start="design" if start is static else "current",
+          value=round(value, 6))
     return Refit(c, fit, holdout_cost(aligned, fit.prediction))
 
 
