@@ -6,7 +6,9 @@ that asked for it (the innermost of calibrate, screen, recalibrate, polish, sett
 identify on the call stack). Prints the bench's row (named, right, wall and CPU seconds, load) with
 ``sims`` (per step and ``total``), ``sim_cpu`` (CPU s per step) and ``sims_by_length``.
 
-    HYDROWATCH_THREADS=2 python benchmarks/bench_gap_cost.py gear_backlash+entrained_air --seed 2035 [-v]
+    HYDROWATCH_THREADS=2 python benchmarks/bench_gap_cost.py [CASE] [--seed 2035] [--unit 0] [-v]
+
+Without arguments it runs the slowest known case, the dev pair (gear_backlash+entrained_air, seed 2035).
 
 CPU time is the process's (every simulation thread); on a shared machine say the load (the row has it).
 """
@@ -32,6 +34,11 @@ from hydrowatch.recording import SAMPLE_RATE_HZ  # noqa: E402
 
 STEPS = ("calibrate", "screen", "recalibrate", "polish", "settle", "_absorb", "_prune", "identify")
 """Analysis steps the simulations are counted by (the innermost on the call stack)."""
+
+
+REFERENCE_CASE = "gear_backlash+entrained_air"
+REFERENCE_SEED = 2035
+"""The default run: the slowest known case, the dev population's backlash + air pair (docs/gap.md, item 5)."""
 
 
 class Counter:
@@ -66,8 +73,8 @@ class Counter:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("case", help=f"one of {', '.join(bench.CASES)}")
-    parser.add_argument("--seed", "--population", dest="population", type=int, default=2031)
+    parser.add_argument("case", nargs="?", default=REFERENCE_CASE, help=f"one of {', '.join(bench.CASES)}")
+    parser.add_argument("--seed", "--population", dest="population", type=int, default=REFERENCE_SEED)
     parser.add_argument("--unit", type=int, default=0)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="log the analysis' steps to stderr")
     args = parser.parse_args()
