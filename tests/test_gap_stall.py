@@ -1,13 +1,14 @@
 """A fit ends when its cost stops falling, a converged confirmation is not polished again (issue 12,
 item 5: the analysis' time goes to simulations, one batched call per solver iteration), and an accepted
-model whose fit still moves is continued before the next round (issue 12, the settle step)."""
+model whose fit still moves is continued before the next round (issue 12, the settle step); a continuation reuses
+the simulations that ended its fit (issue 12, eighth pass)."""
 
 from __future__ import annotations
 
 import pytest
 
-from hydrowatch.gap import hypothesis
-from hydrowatch.gap.align import align
+from hydrowatch.gap import calibrate, hypothesis
+from hydrowatch.gap.align import align, simulate_sensors
 from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
 from hydrowatch.gap.space import ModelSpace
@@ -57,4 +58,37 @@ def test_an_accepted_model_still_moving_after_one_continuation_is_continued_agai
     settled = hypothesis.settle(aligned, cut)
     assert settled.fit_cost < 0.9 * once.fit_cost
     assert abs(settled.values["Kq"] / unit.Kq - 1.0) < abs(once.values["Kq"] / unit.Kq - 1.0)
+
+
+
+def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
+    that ended that fit, and is taken from it (issue 12, item 5) — the same fit, one simulation per coordinate and
+    one for the point fewer."""
+    design = PlantParameters()
+    unit = design.replace(Kq=design.Kq * 1.25, TL=design.TL * 0.75)
+    aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
+    space = ModelSpace(design, {}, ("Kq", "TL"))
+    models: list[int] = []
+
+    def counted(*args: object, **kwargs: object) -> object:
+        models.append(len(args[1]))  # type: ignore[arg-type]
+        return simulate_sensors(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(calibrate, "simulate_sensors", counted)
+    cut = fit_output_error(aligned, space, max_nfev=2)
+    models.clear()
+    continued = fit_output_error(aligned, space, cut.z, max_nfev=3)
+    with_reuse = sum(models)
+    monkeypatch.setattr(calibrate, "_LAST_JACOBIAN", calibrate._LastJacobian())  # nothing kept
+    models.clear()
+    fresh = fit_output_error(aligned, space, cut.z, max_nfev=3)
+    assert sum(models) == with_reuse + 3
+    assert fresh.z.tobytes() == continued.z.tobytes() and fresh.fit_cost == continued.fit_cost
+    # Kept for that recording only: the same samples in another recording object are simulated again.
+    again = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
+    fit_output_error(aligned, space, max_nfev=2)
+    models.clear()
+    fit_output_error(again, space, cut.z, max_nfev=3)
+    assert sum(models) == with_reuse + 3
 

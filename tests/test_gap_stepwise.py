@@ -160,7 +160,14 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
         confirmed.append(s.candidate.id)
         return Refit(s.candidate, found, holdout_cost(aligned_, found.prediction))  # type: ignore[arg-type]
 
+    scanned: list[str] = []
+
+    def scan(data: AlignedRecording, base: Fit, c: object, origins: object) -> tuple[None, float, float]:
+        scanned.append(c.id)  # type: ignore[attr-defined]
+        return None, 0.0, -1.0
+
     monkeypatch.setattr(screening, "refit", quick)
+    monkeypatch.setattr(screening, "scan_magnitude", scan)
     monkeypatch.setattr(screening, "fit_output_error", lambda data, space, **kw: Fit(TRUTH[:, : data.t.size], {}, 0))
     monkeypatch.setattr(stepwise, "recalibrate", full)
     monkeypatch.setattr(stepwise, "polish", lambda a, refit: refit)
@@ -176,6 +183,8 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
     assert all(t.gain < -0.5 and not t.passed for t in first)
     assert sorted(screened[:2]) == [("entrained_air", 1), ("transport_delay", 1)]
     assert sorted(screened[2:]) == [("entrained_air", 18), ("transport_delay", 18)]
+    # The second look takes the first look's magnitude scans (the same grids, data and model): one scan each.
+    assert sorted(scanned) == ["entrained_air", "transport_delay"]
     assert second[0].passed and second[0].gain > 0.5 and not second[1].passed and 0 < second[1].gain < 0.03
 
     # Alone, the delay (beating the plant alone by ~1.5 %, less than the 3 % an effect must gain) gets no full

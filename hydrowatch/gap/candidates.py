@@ -231,10 +231,14 @@ def holdout_cost(aligned: AlignedRecording, prediction: np.ndarray) -> float:
     return float(np.sum(e**2) / aligned.holdout_mask.sum())
 
 
+Scan = tuple[PlantParameters, float, float]
+"""What :func:`scan_magnitude` returns: plant parameters, starting value, cost change."""
+
+
 def scan_magnitude(
     aligned: AlignedRecording, base: OutputErrorFit, candidate: Candidate, origins: Sequence[PlantParameters],
     *, plain_origins: bool = True,
-) -> tuple[PlantParameters, float, float]:
+) -> Scan:
     """The plant parameters (the base model's or one of ``origins``) and starting value of the
     candidate's first free parameter at the lowest-cost grid point, and that cost minus the base
     model's (negative: the effect helps), from one batched simulation.
@@ -277,6 +281,7 @@ def refit(
     start_effect: Mapping[str, float] | None = None,
     origins: Sequence[PlantParameters] = (),
     require_gain: bool = False,
+    scanned: Scan | None = None,
 ) -> Refit | None:
     """Add ``candidate`` to ``base`` (calibrated model plus accepted effects) and refit.
 
@@ -297,12 +302,14 @@ def refit(
     require_gain : bool, default False
         Return None, without the local fit, when no grid point of the scan lowers the fitting cost
         below ``base``'s (the cheap first cut of screening).
+    scanned : Scan, optional
+        The scan's result when it was made before with these arguments (:func:`scan_magnitude`).
     """
     params = base.parameters
     if start_effect is not None:
         effect = candidate.effect(**start_effect)
     else:
-        params, start, change = scan_magnitude(aligned, base, candidate, origins)
+        params, start, change = scanned or scan_magnitude(aligned, base, candidate, origins)
         if require_gain and change >= 0.0:
             return None
         effect = candidate.effect(**{candidate.free[0]: start})

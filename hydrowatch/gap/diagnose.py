@@ -54,7 +54,7 @@ import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, fit_output_error
-from hydrowatch.gap.candidates import Candidate, Refit, holdout_cost, untestable
+from hydrowatch.gap.candidates import Candidate, Refit, Scan, holdout_cost, untestable
 from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.hypothesis import polish, recalibrate, settle
 from hydrowatch.gap.locate import noise_std, whiteness
@@ -379,7 +379,8 @@ def diagnose(
         pool = [c for c in testable if c.id not in present]
         if not pool:
             break
-        screened, out = screen(aligned, current, pool, origins)
+        scans: dict[str, Scan] = {}
+        screened, out = screen(aligned, current, pool, origins, scans=scans)
         diagnosis.scanned_out.append(out)
         trials = confirm_ranked(screened)
         diagnosis.rounds.append(trials)
@@ -397,7 +398,7 @@ def diagnose(
             # without the effect can hold it in parameters that are no partner (screen.py).
             confirmed = {t.refit.candidate.label for t in trials if _is_confirmation(t, current)}
             screened, _ = screen(aligned, current, [c for c in pool if c.label not in confirmed], origins,
-                                  plant_free=current.space.plant_free)
+                                  plant_free=current.space.plant_free, scans=scans)
             diagnosis.scanned_out.append([])
             # Its screen refits what the confirmation refits: one that gains less than an effect must is not
             # confirmed (2035 entrained air alone: valve hysteresis at +0.02 %, 40 s of CPU, failed).

@@ -8,7 +8,16 @@ from dataclasses import replace
 
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
-from hydrowatch.gap.candidates import SCREEN_SECONDS, SLOW_EFFECTS, Candidate, Refit, holdout_cost, refit
+from hydrowatch.gap.candidates import (
+    SCREEN_SECONDS,
+    SLOW_EFFECTS,
+    Candidate,
+    Refit,
+    Scan,
+    holdout_cost,
+    refit,
+    scan_magnitude,
+)
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -23,8 +32,8 @@ Screened = tuple[float, Refit, AlignedRecording, OutputErrorFit]
 
 
 def screen(aligned: AlignedRecording, current: OutputErrorFit, pool: Sequence[Candidate],
-            origins: Sequence[PlantParameters], plant_free: tuple[str, ...] | None = None
-            ) -> tuple[list[Screened], list[str]]:
+            origins: Sequence[PlantParameters], plant_free: tuple[str, ...] | None = None,
+            scans: dict[str, Scan] | None = None) -> tuple[list[Screened], list[str]]:
     """The candidates of ``pool`` ranked by their quick fit's held-out gain against ``current``, best first,
     and the labels of those no magnitude of which lowered the fitting cost (an effect without partners).
 
@@ -38,6 +47,11 @@ def screen(aligned: AlignedRecording, current: OutputErrorFit, pool: Sequence[Ca
     (gain 0.74): the calibration without the air had held its softness in βe ×0.5 and Vt ×3 and had bent ωv,
     ζv, Kr, Ctm, so a little air on that plant with only βe free only added softness; with every plant
     parameter free it screened at +24 % (matched +30 %), first of the remaining candidates, all others ≤ +3 %.
+
+    ``scans``: each candidate's magnitude scan (:func:`scan_magnitude`) by label, filled here and reused when
+    present. Both looks of a round scan the same grids on the same data against the same model, so the
+    second look takes the first's (issue 12, item 5: 18 simulations of the whole record for thermal drift
+    and ≈ 24 of the head for each other candidate, per second look).
     """
     head = aligned.head(SCREEN_SECONDS)
     zero: dict[int, float] = {}
@@ -47,7 +61,12 @@ def screen(aligned: AlignedRecording, current: OutputErrorFit, pool: Sequence[Ca
         data = aligned if c.id in SLOW_EFFECTS else head
         base = replace(current, prediction=current.prediction[:, : data.t.size])
         free = c.partners if plant_free is None else plant_free
-        r = refit(data, base, c, plant_free=free, max_nfev=SCREEN_NFEV, origins=origins, require_gain=not free)
+        scan = scans.get(c.label) if scans is not None else None
+        if scan is None:
+            scan = scan_magnitude(data, base, c, origins)
+            if scans is not None:
+                scans[c.label] = scan
+        r = refit(data, base, c, plant_free=free, max_nfev=SCREEN_NFEV, require_gain=not free, scanned=scan)
         if r is None:
             out.append(c.label)
             continue
