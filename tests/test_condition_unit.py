@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hydrowatch.condition import determinacy, parity
 from hydrowatch.condition import held as held_module
-from hydrowatch.condition import parity
 from hydrowatch.condition import unit as unit_module
 from hydrowatch.condition.commission import left_to_prior
 from hydrowatch.condition.held import held_noise
@@ -103,7 +103,7 @@ def test_the_brake_smoothing_speed_is_identified_only_from_a_recording_that_come
     trained, unit = units[0], units[3]
     load = {"load": unit_module.RELATION_PARAMETERS["load"]}
     duty = raw_windows(unit, duty_cycle(300.0, (0.5, 3.5), seed=55_040), 55_039)
-    assert np.abs(duty[:, :, 2]).min() > unit_module.STANDSTILL * trained.omega_s
+    assert np.abs(duty[:, :, 2]).min() > determinacy.STANDSTILL * trained.omega_s
     kept = identify_unit(duty, trained, parameters=load)
     assert kept.parameters.omega_s == trained.omega_s  # was 0.949 (trained 0.212, the unit 0.228)
     assert "omega_s" in left_to_prior(kept) and "TL" not in left_to_prior(kept)

@@ -47,6 +47,7 @@ from scipy.optimize import least_squares
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
+from hydrowatch.condition.determinacy import free_parameters
 from hydrowatch.condition.estimates import CHANNELS, LPM_TO_M3S, WIDTH, check_windows, invalid_reasons
 from hydrowatch.condition.held import held_mask, noise_where
 from hydrowatch.errors import DataError
@@ -84,15 +85,6 @@ while the fit started from the truth reached Pc 1.15 × with Kr 0.97 × and 7652
 SCREEN_TOLERANCE = 1e-3
 """Relative tolerance (ftol, xtol) to which each of several starts is fitted before the best is finished
 (:func:`_fit`); the basins along the relief's ridge differ by 5–25 % in the criterion."""
-STANDSTILL = 3.0
-"""The brake's sign term TL·tanh(ω/ωs) (Eq. 7) differs from ±TL by more than 0.5 % only within 3 ωs of standstill ..."""
-MIN_STANDSTILL = 200
-"""... so ωs is identified only from a recording with at least this many samples (1 s) of |ω| < :data:`STANDSTILL` × ωs;
-otherwise it keeps the given nominal (:func:`free_parameters`). A healthy duty cycle of 0.5–3.5 V never comes near
-standstill (its slowest sample 0.1–5 rad/s, 0–4 samples within 3 ωs; 300 s of filtered noise 0–4 V: 800–1300), yet its
-fit moved ωs to the search limit (× 4.5) on 5 of 19 units of seed 2039, buying 1–2 % of the load relation's residual
-with a term that only acts near standstill, where the model then failed: a motor leak's stall in a 0.5 V hold read
-``unknown`` (load severity 2.0, the brake torque thrice the unit's; docs/unseen-units.md)."""
 MAX_WINDOWS = 60
 """Windows used for the valve relation (evenly spaced among the valid ones): its supply line is integrated per
 trial. 60 windows (300 s, a commissioning recording); measured on duty cycles, 40 left the valve gain and relief
@@ -237,16 +229,6 @@ def _motor_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
         y = parity.block_means(s.flow - p.N * p.Dm * s.speed) - p.Vt / (4.0 * p.beta_e) * parity.block_rates(pl)
         return (y - p.Ctm * s.leak * parity.block_means(pl)) * M3S_TO_LPM
     return residual
-
-
-def free_parameters(relation: str, names: Sequence[str], speed: np.ndarray, p: PlantParameters) -> tuple[str, ...]:
-    """The parameters of ``relation`` that a recording of gearbox speeds ``speed`` (rad/s) can move from ``p``:
-    ``names`` without ωs unless the recording comes near standstill (:data:`MIN_STANDSTILL`)."""
-    if relation != "load" or "omega_s" not in names:
-        return tuple(names)
-    if int(np.sum(np.abs(speed) < STANDSTILL * p.omega_s)) >= MIN_STANDSTILL:
-        return tuple(names)
-    return tuple(n for n in names if n != "omega_s")
 
 
 def _with_prior(names: Sequence[str], fitted: Sequence[str], covariance: np.ndarray) -> np.ndarray:
