@@ -19,6 +19,7 @@ import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
+from hydrowatch.condition.held import window_noise
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.errors import DataError
 from hydrowatch.health.windows import check_window, sliding_windows
@@ -58,6 +59,9 @@ class WindowSignals:
     relations: tuple[str, ...]
     leak: np.ndarray
     """Leakage factor of the oil per window, shape (m, 1) (1 at 40 °C or without temperature)."""
+    pl_noise: np.ndarray | None = None
+    """White noise of P̂L per window, Pa, shape (m,), 0 where the window cannot tell it
+    (:func:`~hydrowatch.condition.held.window_noise`); the valve relation takes its share out."""
 
 
 def check_windows(windows: np.ndarray, window: int) -> np.ndarray:
@@ -128,8 +132,9 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
     if "flow" not in have:
         flow = p.N * p.Dm * speed + q.Ctm * leak * pl + p.Vt / (4.0 * p.beta_e) * parity.derivative(pl)
         relations.discard("motor")
+    measured = window_noise(pl) if {"speed", "torque"} <= have else np.zeros(pl.shape[0])
     return WindowSignals(u, flow, speed, torque, pl, parity.spool_position(u, p),
-                         tuple(r for r in RELATIONS if r in relations), leak)
+                         tuple(r for r in RELATIONS if r in relations), leak, measured)
 
 
 @dataclass(frozen=True)
@@ -188,11 +193,13 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
     mse["motor"] = rms**2
     curvature["motor_leak"] = np.mean(phi**2, axis=1)
     nominal = None if valve_search else parity.valve_mse(sig.flow, sig.spool, sig.load_pressure, p, None,
-                                                          np.zeros(sig.flow.shape[0]), sig.leak)
+                                                          np.zeros(sig.flow.shape[0]), sig.leak,
+                                                          pl_noise=sig.pl_noise)
     for fault in parity.VALVE_HYPOTHESES:
         if nominal is None:
             severity[fault], mse[fault], curvature[fault] = parity.valve_fit(sig.flow, sig.spool, sig.load_pressure,
-                                                                             p, fault, leak=sig.leak)
+                                                                             p, fault, leak=sig.leak,
+                                                                             pl_noise=sig.pl_noise)
         else:
             severity[fault], mse[fault], curvature[fault] = np.zeros(nominal.size), nominal, np.zeros(nominal.size)
     if nominal is None:
@@ -226,8 +233,9 @@ def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severit
     edge = 1e-9 * (hi - lo)
     again = np.flatnonzero(((severity <= lo + edge) | (severity >= hi - edge)) & (mse > REFIT_EXCESS * best))
     if again.size:
+        noise = None if sig.pl_noise is None else sig.pl_noise[again]
         s2, m2, c2 = parity.valve_fit(sig.flow[again], sig.spool[again], sig.load_pressure[again], p, fault,
-                                      grid=REFIT_GRID, leak=sig.leak[again])
+                                      grid=REFIT_GRID, leak=sig.leak[again], pl_noise=noise)
         better = m2 < mse[again]
         idx = again[better]
         severity, mse, curvature = severity.copy(), mse.copy(), curvature.copy()
@@ -273,8 +281,9 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
                 mse[inside] += est.curvature[fault][inside] * (held[inside] - s[inside]) ** 2
                 moved &= ~inside
             if np.any(moved):
+                noise = None if sig.pl_noise is None else sig.pl_noise[moved]
                 mse[moved] = parity.valve_mse(sig.flow[moved], sig.spool[moved], sig.load_pressure[moved], p, fault,
-                                              held[moved], sig.leak[moved])
+                                              held[moved], sig.leak[moved], pl_noise=noise)
             cache[key] = mse
         best = np.minimum(best, cache[key])
     out["valve"] = best

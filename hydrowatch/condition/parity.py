@@ -36,6 +36,7 @@ the nominal parameters and the health-state scale hold.
 from __future__ import annotations
 
 import functools
+from typing import cast
 
 import numpy as np
 from numba import njit
@@ -307,13 +308,60 @@ def _kernel_inputs(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: Plant
             np.ascontiguousarray(flow, dtype=np.float64), f)
 
 
+PRESSURE_STEP = 1e4
+"""Step of P̂L, Pa (0.1 bar), for the predicted flow's slope ∂Q̂/∂P̂L (:func:`noise_share`)."""
+BLOCK_NOISE = (0.5 + (BLOCK - 1)) / BLOCK**2
+"""Variance of a trapezoid block mean of :data:`BLOCK` intervals of white noise, over the noise's variance."""
+KEPT_SHARE = 0.05
+"""The least share of a valve MSE kept after its noise share is taken out (:func:`without_noise`)."""
+
+
+def noise_share(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None, severity: np.ndarray,
+                leak: float | np.ndarray, pl_noise: np.ndarray) -> np.ndarray:
+    """What white noise of σ ``pl_noise`` (m,), Pa, on P̂L adds to a hypothesis' :func:`valve_mse`, (L/min)², (m,).
+
+    The predicted flow follows P̂L's noise with slope ∂Q̂/∂P̂L, which differs between hypotheses: a weaker relief
+    spring lowers Ps − P̂L and steepens it (∂Q̂/∂P̂L ∝ 1/√(Ps − P̂L)), a weaker coil flattens it. P̂L comes from the
+    torque transducer, so on a noisy DAQ the relief hypothesis paid 2–7 % of its MSE for the noise and the coil 1–2 %,
+    and a worn relief spring read as a weak coil (errors in variables; ``benchmarks/bench_valve_eiv.py``). The share is
+    mean_b (∂Q̂/∂P̂L)_b² · σ² · :data:`BLOCK_NOISE` over the relation's blocks.
+    """
+    m = spool.shape[0]
+    s = np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (m,))
+    base = valve_flow_prediction(spool, pl, p, fault, s, leak)
+    moved = valve_flow_prediction(spool, pl + PRESSURE_STEP, p, fault, s, leak)
+    slope = block_means((moved - base) / PRESSURE_STEP * M3S_TO_LPM)
+    return cast(np.ndarray, np.mean(slope**2, axis=1) * np.asarray(pl_noise, dtype=np.float64) ** 2 * BLOCK_NOISE)
+
+
+def without_noise(mse: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
+                  severity: np.ndarray, leak: float | np.ndarray, pl_noise: np.ndarray | None) -> np.ndarray:
+    """``mse`` (m,) less its :func:`noise_share` in the windows whose P̂L noise is measured (> 0), at least
+    :data:`KEPT_SHARE` of it."""
+    if pl_noise is None:
+        return mse
+    sigma = np.asarray(pl_noise, dtype=np.float64).reshape(-1)
+    rows = np.flatnonzero(sigma > 0.0)
+    if rows.size == 0:
+        return mse
+    s = np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (mse.shape[0],))
+    lk = leak if np.ndim(leak) == 0 else np.asarray(leak).reshape(-1, 1)[rows]
+    share = noise_share(spool[rows], pl[rows], p, fault, s[rows], lk, sigma[rows])
+    out = np.array(mse, dtype=np.float64, copy=True)
+    out[rows] = np.maximum(out[rows] - share, KEPT_SHARE * out[rows])
+    return out
+
+
 def valve_mse(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
-              severity: np.ndarray, leak: float | np.ndarray = 1.0, sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
-    """Mean squared :func:`valve_residual`, (L/min)², shape (m,), computed without storing the signals."""
+              severity: np.ndarray, leak: float | np.ndarray = 1.0, sample_rate: float = SAMPLE_RATE_HZ,
+              pl_noise: np.ndarray | None = None) -> np.ndarray:
+    """Mean squared :func:`valve_residual`, (L/min)², shape (m,), computed without storing the signals; with
+    ``pl_noise`` (m,), P̂L's measured noise per window, Pa, less what that noise adds (:func:`without_noise`)."""
     g, pl_c, q, f = _kernel_inputs(flow, spool, pl, p, leak)
     s = np.ascontiguousarray(np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (flow.shape[0],)))
-    return supply.residual_mse(supply.HYPOTHESIS_CODES[fault], s, g, pl_c, q, f, supply.constants(p, sample_rate),
-                               BLOCK)
+    mse = supply.residual_mse(supply.HYPOTHESIS_CODES[fault], s, g, pl_c, q, f, supply.constants(p, sample_rate),
+                              BLOCK)
+    return without_noise(mse, spool, pl, p, fault, s, leak, pl_noise)
 
 
 def valve_relation(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str,
@@ -334,8 +382,10 @@ def valve_relation(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: Plant
 
 def valve_fit(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str,
               grid: int = 7, iterations: int = 4, leak: float | np.ndarray = 1.0,
-              sample_rate: float = SAMPLE_RATE_HZ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`valve_relation`'s severity, mean squared residual, (L/min)², and curvature d(MSE)/d(s²), each (m,)."""
+              sample_rate: float = SAMPLE_RATE_HZ,
+              pl_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`valve_relation`'s severity, mean squared residual, (L/min)², and curvature d(MSE)/d(s²), each (m,);
+    with ``pl_noise`` the MSE at the fitted severity less what P̂L's measured noise adds (:func:`without_noise`)."""
     if grid < 3 or iterations < 0:
         raise ParameterError(f"grid must be >= 3 and iterations >= 0. Got {grid}, {iterations}; defaults 7, 4.")
     lo, hi = SEVERITY_LIMITS[fault]
@@ -343,4 +393,4 @@ def valve_fit(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParam
     s, mse, curvature = (np.empty(flow.shape[0]) for _ in range(3))
     supply.fit_windows(supply.HYPOTHESIS_CODES[fault], lo, hi, grid, iterations, g, pl_c, q, f,
                        supply.constants(p, sample_rate), BLOCK, s, mse, curvature)
-    return s, mse, curvature
+    return s, without_noise(mse, spool, pl, p, fault, s, leak, pl_noise), curvature
