@@ -30,7 +30,8 @@ a severity that moves with the command. The hypothesis with the smallest :func:`
 pool shares one straight severity trend) is the worn part and gets its index; the others read 0 with an
 interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). When the
 runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part wears: from
-:data:`UNTOLD_LEVEL` on, the blamed part then has no index (NaN) rather than a value on what may be the wrong part.
+:data:`UNTOLD_LEVEL` on, every part the pool cannot rule out (its misfit within the margin of the best) then has no
+index (NaN) rather than a value on what may be the wrong part, or a 0 on what may be the worn one.
 load and motor_leak have their own relations and are always estimated.
 
 **Determined or not.** A window whose fit barely depends on a part's severity (a severity :data:`DETERMINED_STEP`
@@ -189,7 +190,7 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) ->
 
 def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
                            curvature: Mapping[str, np.ndarray], valid: np.ndarray,
-                           pool: int = ATTRIBUTION_WINDOWS, with_gap: bool = False) -> Any:
+                           pool: int = ATTRIBUTION_WINDOWS, with_excess: bool = False) -> Any:
     """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
 
     The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
@@ -201,8 +202,9 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
         Each valve hypothesis's free fit per window: ŝ, minimum MSE [(L/min)²], c (NaN where invalid).
     valid : ndarray of bool, shape (n,)
     pool : int, default :data:`ATTRIBUTION_WINDOWS`
-    with_gap : bool, default False
-        Also return the runner-up's misfit minus the best's per window (inf where invalid): ``(blamed, gap)``.
+    with_excess : bool, default False
+        Also return each hypothesis's pool misfit minus the best's, shape (n, 4) (0 for the blamed part, inf
+        where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` tests.
     """
     m = int(valid.sum())
     misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
@@ -212,12 +214,10 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
             misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
         if m >= pool:
             misfit[pool - 1:, j] = pool_misfit(*(sliding_window_view(a, pool) for a in fit))
-    out, gap = np.full(valid.size, -1, dtype=np.int64), np.full(valid.size, np.inf)
+    out, excess = np.full(valid.size, -1, dtype=np.int64), np.full((valid.size, misfit.shape[1]), np.inf)
     out[valid] = np.argmin(misfit, axis=1)
-    if misfit.shape[1] > 1:
-        ranked = np.sort(misfit, axis=1)
-        gap[valid] = ranked[:, 1] - ranked[:, 0]
-    return (out, gap) if with_gap else out
+    excess[valid] = misfit - misfit.min(axis=1, keepdims=True)
+    return (out, excess) if with_excess else out
 
 
 @dataclass(frozen=True)
@@ -256,7 +256,7 @@ class Degradation:
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
                        relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
-                       blamed: np.ndarray | None = None, gap: np.ndarray | None = None) -> Degradation:
+                       blamed: np.ndarray | None = None, excess: np.ndarray | None = None) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -275,8 +275,9 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         Valid windows deciding the valve-side part (:func:`attributed_valve_fault`).
     blamed : ndarray of int, shape (n,), optional
         The valve-side part of each window when the caller has chosen it (:class:`DegradationStream`).
-    gap : ndarray, shape (n,), optional
-        With ``blamed``: the runner-up's pool misfit minus the blamed part's (None: every window told apart).
+    excess : ndarray, shape (n, 4), optional
+        With ``blamed``: each valve hypothesis's pool misfit minus the blamed part's (None: every window told
+        apart).
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
@@ -285,9 +286,11 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if blamed is None:
         severity, misfit, curvature = ({f: _spread(a[f], valid) for f in parity.VALVE_HYPOTHESES}
                                        for a in (estimates.severity, mse, estimates.curvature))
-        blamed, gap = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_gap=True)
-                       if "valve" in relations and valid.any() else (np.full(n, -1), None))
-    told = np.ones(n, dtype=bool) if gap is None else np.asarray(gap) >= ATTRIBUTION_MARGIN
+        blamed, excess = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_excess=True)
+                          if "valve" in relations and valid.any() else (np.full(n, -1), None))
+    contender = (np.zeros((n, len(parity.VALVE_HYPOTHESES)), dtype=bool) if excess is None
+                 else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
+    untold = contender.sum(axis=1) > 1
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
@@ -297,13 +300,15 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         v, lo, hi = degradation_index(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal)  # one table look-up
         lo, hi = widened(v, lo, hi)
         if fault in parity.VALVE_HYPOTHESES:
-            mine = blamed[valid] == parity.VALVE_HYPOTHESES.index(fault)
+            j = parity.VALVE_HYPOTHESES.index(fault)
+            mine = blamed[valid] == j
+            # worn (by its own fit), but the pool cannot tell this part from another: no index, blamed or not
+            not_told = untold[valid] & contender[valid, j] & (v >= UNTOLD_LEVEL)
             lo, hi = np.where(mine, lo, np.minimum(0.0, lo)), np.where(mine, hi, np.maximum(0.0, hi))
             v = np.where(mine, v, 0.0)
-            mine_untold = mine & ~told[valid] & (v >= UNTOLD_LEVEL)  # worn, but which part the pool cannot tell
         else:
-            mine, mine_untold = np.ones(v.size, dtype=bool), np.zeros(v.size, dtype=bool)
-        unknown = mine & (~determined | mine_untold)  # the part's own fit does not determine it: no index
+            mine, not_told = np.ones(v.size, dtype=bool), np.zeros(v.size, dtype=bool)
+        unknown = mine & ~determined | not_told  # the part's own fit does not determine it: no index
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
     return Degradation(value, low, high, measured)
@@ -354,14 +359,13 @@ class DegradationStream:
         :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
         only (``measured``: :meth:`Degradation.window`)."""
         f = self.features
-        blamed, gap = np.array([-1]), None
+        blamed, excess = np.array([-1]), None
         if "valve" in f.relations_:
             self._fits.append(np.array([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES]))
             ring = np.stack(self._fits, axis=-1)  # (hypothesis, ŝ / MSE / c, window)
             misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
-            blamed, ranked = np.array([int(np.argmin(misfit))]), np.sort(misfit)
-            gap = np.array([ranked[1] - ranked[0]])
+            blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed, gap)
+                                   f.relations_, self.pool, blamed, excess)
         return found.window(0, measured=True)
