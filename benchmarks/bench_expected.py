@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from hydrowatch.condition.estimates import windows_from_recording
+from hydrowatch.condition.layout import windows_from_recording
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.io.codec import encode_batch
 from hydrowatch.plant.fleet import simulate_states

@@ -5,7 +5,7 @@ import pytest
 
 from hydrowatch import recording
 from hydrowatch.channels import LABEL, PLANT, TIME, Channel, ChannelSet
-from hydrowatch.condition import estimates
+from hydrowatch.condition import layout
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant import PlantParameters, PlantSimulator, simulate
 from hydrowatch.plant.effects import SENSOR_NAMES
@@ -41,7 +41,7 @@ def test_plant_set_roles_and_the_recording_views() -> None:
     assert recording.OPTIONAL_CHANNELS == (*PLANT.sensors, *PLANT.with_role("condition"))
     assert recording.UNITS == {"t": "s", "voltage": "V", "flow": "L/min", "speed": "rad/s", "torque": "N·m",
                                "supply_pressure": "bar", "load_pressure": "bar", "temperature": "°C"}
-    assert estimates.CHANNELS == (PLANT.command, *PLANT.sensors) and estimates.WIDTH == 4
+    assert layout.CHANNELS == (PLANT.command, *PLANT.sensors) and layout.WIDTH == 4
 
 
 def test_kernel_columns_follow_the_measured_channels() -> None:

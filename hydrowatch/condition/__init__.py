@@ -9,9 +9,9 @@ The relations themselves are in :mod:`hydrowatch.condition.parity`; docs/command
 has the measurements.
 """
 
-from hydrowatch.condition.estimates import windows_from_recording
 from hydrowatch.condition.evidence import EvidenceLayout, EvidenceSmoother, pooled_windows, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures
+from hydrowatch.condition.layout import windows_from_recording
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.condition.stream import ConditionStream

@@ -43,7 +43,7 @@ from typing import Any, NamedTuple, cast
 
 import numpy as np
 
-from hydrowatch.condition import estimates as E
+from hydrowatch.condition import layout as L
 from hydrowatch.condition import parity
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.model import ConditionModel
@@ -295,7 +295,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         The fleet model (trained on one unit's health states).
     windows : ndarray, shape (m, window, 4 or 5)
         Consecutive raw windows of the unit in its healthy state on any working command
-        (:func:`~hydrowatch.condition.estimates.windows_from_recording` with the model's window and hop).
+        (:func:`~hydrowatch.condition.layout.windows_from_recording` with the model's window and hop).
 
     Raises
     ------
@@ -304,7 +304,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     """
     model._check_fitted()
     features = model.features_
-    w = E.check_windows(np.asarray(windows, dtype=np.float64), features.window)
+    w = L.check_windows(np.asarray(windows, dtype=np.float64), features.window)
     ok = np.array([r is None for r in features.window_reasons(w)], dtype=bool)
     seconds = float(ok.sum()) * min(features.hop, features.window) / SAMPLE_RATE_HZ
     valid = w[ok]

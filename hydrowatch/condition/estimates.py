@@ -7,7 +7,7 @@ fills the sensors a sparse configuration lacks from the nominal relations of
 anything, so it is dropped). :func:`parity_estimates` fits every relation once per window;
 :func:`relation_mse` gives each relation's mean squared residual when the parameters are held
 inside a box (a health state's severity band), which is what the health-state scores compare.
-:func:`windows_from_recording` cuts a recording into the raw windows of that layout (:data:`CHANNELS`).
+The raw windows' layout (channels, checks, cutting a recording) is :mod:`hydrowatch.condition.layout`.
 """
 
 from __future__ import annotations
@@ -20,22 +20,13 @@ import numpy as np
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.condition.held import window_noise
-from hydrowatch.condition.oil import temperature_known
-from hydrowatch.errors import DataError
-from hydrowatch.health.windows import check_window, sliding_windows
+from hydrowatch.condition.layout import CHANNELS, WIDTH
 from hydrowatch.plant.faults import FAULTS, LEVEL_BANDS, level_severity, parse_state, severity_for_speed_drop
 from hydrowatch.plant.parameters import PlantParameters
-from hydrowatch.recording import INPUT, SENSORS, Recording
+from hydrowatch.recording import INPUT
 
 RELATIONS: tuple[str, ...] = ("load", "motor", "valve")
 """Component relations, in feature order."""
-CHANNELS: tuple[str, ...] = (INPUT, *SENSORS)
-"""Channel order of a window's last axis (4 channels)."""
-WIDTH = len(CHANNELS)
-"""Channels of a window without the oil temperature (4); with it, the temperature is column WIDTH."""
-TEMPERATURE = "temperature"
-"""Optional 5th channel of a window: oil temperature, °C (absent or all NaN: unknown, the leak boxes allow for the
-oil's range, :mod:`hydrowatch.condition.oil`)."""
 LPM_TO_M3S = 1.0 / M3S_TO_LPM
 REFIT_GRID = 19
 """Coarse-grid points of the second valve search for fits that end on a search limit (:func:`parity_estimates`)."""
@@ -62,19 +53,6 @@ class WindowSignals:
     pl_noise: np.ndarray | None = None
     """White noise of P̂L per window, Pa, shape (m,), 0 where the window cannot tell it
     (:func:`~hydrowatch.condition.held.window_noise`); the valve relation takes its share out."""
-
-
-def check_windows(windows: np.ndarray, window: int) -> np.ndarray:
-    """Validate raw windows, shape (m, window, 4) in :data:`CHANNELS` order, or 5 with the oil temperature [°C]."""
-    w = np.asarray(windows, dtype=np.float64)
-    if w.ndim == 2 and w.shape[0] == window and w.shape[1] in (WIDTH, WIDTH + 1):
-        w = w[None]
-    if w.ndim != 3 or w.shape[1] != window or w.shape[2] not in (WIDTH, WIDTH + 1):
-        raise DataError(
-            f"windows must have shape (n_windows, {window}, {WIDTH} or {WIDTH + 1}) with channels {list(CHANNELS)} "
-            f"[+ {TEMPERATURE}]. Got {w.shape}. Cut recordings with windows_from_recording."
-        )
-    return w
 
 
 def fill_faults(sensors: Sequence[str]) -> tuple[str, ...]:
@@ -290,28 +268,6 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
     return out
 
 
-def invalid_reasons(windows: np.ndarray, sensors: Sequence[str]) -> list[str | None]:
-    """Why each valid-shaped window (m, n, 4 or 5) cannot be judged, or None (``ConditionFeatures.window_reasons``)."""
-    used = [0] + [1 + SENSORS.index(s) for s in sensors] + ([WIDTH] if windows.shape[2] > WIDTH else [])
-    names = (*CHANNELS, TEMPERATURE)
-    bad = (~np.isfinite(windows[:, :, used])).sum(axis=1)  # (m, used)
-    if windows.shape[2] > WIDTH:  # a temperature all NaN is unknown oil (condition/oil.py), not a gap
-        bad[~temperature_known(windows, WIDTH), -1] = 0
-    stuck = np.ptp(np.nan_to_num(windows[:, :, used]), axis=1) == 0.0
-    reasons: list[str | None] = []
-    for i in range(windows.shape[0]):
-        why = None
-        for j, c in enumerate(used):
-            if bad[i, j]:
-                why = f"{names[c]}: {int(bad[i, j])} NaN/inf samples in the window"
-                break
-            if 0 < c < WIDTH and stuck[i, j]:
-                why = f"{names[c]}: constant over the window (stuck sensor?)"
-                break
-        reasons.append(why)
-    return reasons
-
-
 def state_box(state: str, level: float, p: PlantParameters, tolerance: float, level_width: float, narrow: bool,
               band_margin: float) -> dict[str, tuple[float, float]]:
     """A health state's severity box: every fault within ``tolerance`` (``level_width`` if narrow) × its warning
@@ -388,25 +344,3 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
                            for r in relations], axis=1)
         ratios.append(scores.reshape(m, -1))
     return ratios, free
-
-
-def windows_from_recording(rec: Recording, window: int = 1000, hop: int = 1000,
-                           temperature: bool | None = None) -> np.ndarray:
-    """Raw windows of a recording, shape (n_windows, window, 4) or (n_windows, window, 5).
-
-    Channels: voltage [V], flow [L/min], speed [rad/s], torque [N·m], and the oil temperature
-    [°C] as 5th channel when ``temperature`` is True, or None (default) and the recording has
-    one; window k covers samples ``[k·hop, k·hop + window)``. A sensor the recording lacks is NaN
-    (a model whose ``sensors`` leave it out fills it from the relations; for one that reads it, every
-    window is invalid).
-    """
-    check_window(window, hop)
-    channels = list(CHANNELS)
-    has = TEMPERATURE in rec.channels
-    if temperature and not has:
-        raise DataError(f"recording must have a '{TEMPERATURE}' channel when temperature=True. "
-                        f"Got channels {sorted(rec.channels)}. Pass temperature=None to use it when present.")
-    if has and temperature is not False:
-        channels.append(TEMPERATURE)
-    nan = np.full(len(rec), np.nan)
-    return np.stack([sliding_windows(rec.channels.get(c, nan), window, hop) for c in channels], axis=-1)

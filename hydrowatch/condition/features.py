@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition import estimates as E
+from hydrowatch.condition import layout as L
 from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
 from hydrowatch.condition.oil import OIL_RANGE, leakage_range, oil_box, oil_parts
@@ -172,7 +173,7 @@ class ConditionFeatures(EvidenceRows):
         self.unit_: dict[str, Any] = {}
         self.relief_spread_ = 0.0
         if self.identify:
-            unit = identify_unit(E.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
+            unit = identify_unit(L.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
                                  self.viscosity_coefficient)
             p, self.unit_ = unit.parameters, unit.summary()
         self.nominal_ = p
@@ -185,7 +186,7 @@ class ConditionFeatures(EvidenceRows):
                         for f, lvl in [parse_state(state)] if f in filled and lvl is not None}
         fitted: dict[str, tuple[E.WindowSignals, E.ParityEstimates]] = {}
         for state, windows in windows_by_state.items():
-            w = E.check_windows(windows, self.window)
+            w = L.check_windows(windows, self.window)
             ok = np.array([r is None for r in self.window_reasons(w)], dtype=bool)
             if ok.sum() < 2:
                 raise DataError(f"state '{state}' must have at least 2 valid windows. Got {int(ok.sum())}.")
@@ -231,7 +232,7 @@ class ConditionFeatures(EvidenceRows):
         out.relief_spread_ = float(relief_spread)
         out.boxes_ = {s: out._box(s, p, margin=margin) for s in out.states_}
         out.level_boxes_ = {s: out._box(s, p, narrow=True) for s in out.states_}
-        w = E.check_windows(healthy, self.window)
+        w = L.check_windows(healthy, self.window)
         ok = np.array([r is None for r in out.window_reasons(w)], dtype=bool)
         if ok.sum() < 2:
             raise DataError(f"commissioning needs at least 2 valid healthy windows. Got {int(ok.sum())}.")
@@ -279,7 +280,7 @@ class ConditionFeatures(EvidenceRows):
         widened by ``oil_range`` (:meth:`_box_sets`) and given as 4 channels.
         """
         self._check_fitted()
-        return oil_parts(E.check_windows(windows, self.window), E.WIDTH)
+        return oil_parts(L.check_windows(windows, self.window), L.WIDTH)
 
     def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]:
         """(band, level) boxes of every state; for windows without the oil temperature widened by ``oil_range``."""
@@ -355,7 +356,7 @@ class ConditionFeatures(EvidenceRows):
         temperature is fine (a hold, a warm machine); a temperature all NaN is an unknown oil
         temperature (``oil_range``).
         """
-        return E.invalid_reasons(E.check_windows(windows, self.window), self.sensors)
+        return L.invalid_reasons(L.check_windows(windows, self.window), self.sensors)
 
     def window_starts(self, n_samples: int) -> np.ndarray:
         """First sample of each window of a record of ``n_samples`` samples."""

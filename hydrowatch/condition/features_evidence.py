@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hydrowatch.condition import estimates as E
+from hydrowatch.condition import layout as L
 from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.relief import window_factors
@@ -117,8 +118,8 @@ class EvidenceRows:
 
     def layout_for(self, windows: np.ndarray) -> EvidenceLayout:
         """:meth:`evidence_layout` for one machine's raw ``windows``: with the oil temperature only if all carry it."""
-        w = E.check_windows(windows, self.window)
-        return self.evidence_layout(bool(temperature_known(w, E.WIDTH).all()))
+        w = L.check_windows(windows, self.window)
+        return self.evidence_layout(bool(temperature_known(w, L.WIDTH).all()))
 
     def severities(self, windows: np.ndarray) -> dict[str, np.ndarray]:
         """Unconstrained severity estimates of every fault per window, ``{fault: (n_windows,)}`` (NaN where invalid)."""

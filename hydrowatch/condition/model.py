@@ -282,7 +282,7 @@ class ConditionModel:
         Parameters
         ----------
         rec_windows : ndarray, shape (n_windows, window, 4)
-            From :func:`~hydrowatch.condition.estimates.windows_from_recording`.
+            From :func:`~hydrowatch.condition.layout.windows_from_recording`.
         n_samples : int, optional
             Length of the recording; default ``window + (n_windows − 1)·hop``.
         smoothing : int, default 1

@@ -32,7 +32,8 @@ import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
-from hydrowatch.condition.estimates import WIDTH, WindowSignals, invalid_reasons, window_signals
+from hydrowatch.condition.estimates import WindowSignals, window_signals
+from hydrowatch.condition.layout import WIDTH, invalid_reasons
 from hydrowatch.condition.oil import oil_parts
 from hydrowatch.expected import POINT_SAMPLES, ExpectedWindow, expected_windows
 from hydrowatch.plant.parameters import PlantParameters
@@ -69,7 +70,7 @@ def relation_predictions(sig: WindowSignals, p: PlantParameters,
 
 def expected_sensors(features: ConditionFeatures, windows: np.ndarray,
                      step: int = POINT_SAMPLES) -> list[ExpectedWindow | None]:
-    """Per raw window (m, n, 4 or 5; :data:`~hydrowatch.condition.estimates.CHANNELS` [+ temperature]) what the
+    """Per raw window (m, n, 4 or 5; :data:`~hydrowatch.condition.layout.CHANNELS` [+ temperature]) what the
     fitted ``features``' healthy unit expected each sensor to read, beside what it read, in points of ``step``
     samples (:func:`hydrowatch.expected.expected_windows`); None for a window that cannot be judged."""
     out: list[ExpectedWindow | None] = [None] * windows.shape[0]

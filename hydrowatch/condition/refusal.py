@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydrowatch.condition import estimates as E
+from hydrowatch.condition import layout as L
 from hydrowatch.condition import parity
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.unit import UnitFit
@@ -57,13 +57,13 @@ def check_excitation(windows: np.ndarray, seconds: float) -> None:
     if seconds < MIN_SECONDS:
         raise CommissioningError(f"commissioning needs at least {MIN_SECONDS:.0f} s of valid healthy operation. "
                                  f"Got {seconds:.0f} s; record longer on a working command.")
-    u = windows[:, :, E.CHANNELS.index("voltage")]
+    u = windows[:, :, L.CHANNELS.index("voltage")]
     spread = float(np.quantile(u, 0.95) - np.quantile(u, 0.05))
     if spread < MIN_COMMAND_SPREAD:
         raise CommissioningError(f"the command must move over at least {MIN_COMMAND_SPREAD} V (5–95 % spread) to "
                                  f"load the parts. Got {spread:.2f} V: a hold cannot tell inertia, damping and valve "
                                  "gain apart; record a duty cycle or filtered noise.")
-    moving = float(np.mean(np.abs(windows[:, :, E.CHANNELS.index("speed")]) > MOVING_SPEED))
+    moving = float(np.mean(np.abs(windows[:, :, L.CHANNELS.index("speed")]) > MOVING_SPEED))
     if moving < MIN_MOVING:
         raise CommissioningError(f"the motor must turn (|speed| > {MOVING_SPEED} rad/s) in at least "
                                  f"{MIN_MOVING:.0%} of the samples. Got {moving:.0%}; record the unit working.")

@@ -48,8 +48,9 @@ from scipy.optimize import least_squares
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
 from hydrowatch.condition.determinacy import free_parameters
-from hydrowatch.condition.estimates import CHANNELS, LPM_TO_M3S, WIDTH, check_windows, invalid_reasons
+from hydrowatch.condition.estimates import LPM_TO_M3S
 from hydrowatch.condition.held import held_mask, noise_where
+from hydrowatch.condition.layout import CHANNELS, WIDTH, check_windows, invalid_reasons
 from hydrowatch.errors import DataError
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters

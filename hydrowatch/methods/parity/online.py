@@ -26,8 +26,9 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition.degradation import DegradationStream
-from hydrowatch.condition.estimates import CHANNELS as WINDOW_CHANNELS
-from hydrowatch.condition.estimates import TEMPERATURE, WIDTH, ParityEstimates
+from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.layout import CHANNELS as WINDOW_CHANNELS
+from hydrowatch.condition.layout import TEMPERATURE, WIDTH
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.predictions import expected_sensors

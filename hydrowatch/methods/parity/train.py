@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, windows_from_recording
-from hydrowatch.condition.estimates import WIDTH
+from hydrowatch.condition.layout import WIDTH
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError
 from hydrowatch.health.metrics import confusion_matrix, expected_calibration_error, per_class_recall
