@@ -146,6 +146,21 @@ def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half
     assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
 
 
+def test_a_relief_on_its_search_bound_is_not_determined_and_the_supply_is_kept(units, models, monkeypatch) -> None:
+    """Halves that agree do not make a relief at its search bound an estimate: the trained unit's supply is kept."""
+    unit, _ = units[1]
+    healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
+    f = models[0].features_
+    choice = C.identify_for_commissioning(f, healthy)
+    assert choice.supply == "identified" and choice.whole is not None and C.on_search_limit(choice.whole) == []
+    kr = abs(float(np.log(choice.whole.factors["Kr"])))
+    assert 0.0 < kr < C.BOUND
+    monkeypatch.setattr(C, "BOUNDS", {**C.BOUNDS, "Kr": kr})  # as if the fit had ended on Kr's bound
+    assert C.on_search_limit(choice.whole) == ["Kr"]
+    again = C.identify_for_commissioning(f, healthy)
+    assert again.supply == C.KEPT and again.fit.parameters.Kr == f.nominal_.Kr
+
+
 def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(models, duty_healthy, duty_fit,
                                                                             monkeypatch) -> None:
     """The held-out error chose the whole fit but it reads the unit's own healthy windows as a fault: the trained
