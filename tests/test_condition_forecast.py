@@ -171,3 +171,15 @@ def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
     assert len({v[0] for v in due.values()}) > 1  # the machines' phases differ
     with pytest.raises(ParameterError, match="every must be an integer >= 1"):
         FleetForecasts(every=0)
+
+
+def test_a_part_flat_before_a_gap_in_its_history_and_wearing_linearly_after_it_forecasts_a_straight_line() -> None:
+    # 9 windows of an index 0, no index from 45 to 270 s (a worn part not yet told from a look-alike), then linear
+    # wear from 120 s at 0.5 per 1200 s, seen until the warning (1320 s): the alert (index 1) is 1200 s later.
+    # Onsets as quantiles of the bins all lay after the gap: an exponential won and forecast 826 s.
+    rng = np.random.default_rng(3)
+    t = np.concatenate([np.arange(0.0, 45.0, 5.0), np.arange(270.0, 1325.0, 5.0)])
+    index = np.maximum(t - 120.0, 0.0) * 0.5 / 1200.0 + 0.004 * rng.standard_normal(t.size)
+    found = forecast_alert(t, index)
+    assert found.model == "linear" and found.alert_in_s == pytest.approx(1200.0, rel=0.05)
+    assert found.ci95[0] <= 1200.0 <= found.ci95[1]
