@@ -5,10 +5,12 @@ the simulations that ended its fit (issue 12, eighth pass)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from hydrowatch.gap import calibrate, hypothesis
-from hydrowatch.gap.align import align, simulate_sensors
+from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
 from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
 from hydrowatch.gap.space import ModelSpace
@@ -60,15 +62,12 @@ def test_an_accepted_model_still_moving_after_one_continuation_is_continued_agai
     assert abs(settled.values["Kq"] / unit.Kq - 1.0) < abs(once.values["Kq"] / unit.Kq - 1.0)
 
 
-
-def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
-    that ended that fit, and is taken from it (issue 12, item 5) — the same fit, one simulation per coordinate and
-    one for the point fewer."""
+def _counted(monkeypatch: pytest.MonkeyPatch) -> tuple[AlignedRecording, ModelSpace, list[int]]:
+    """A 10 s record of a unit 25 % off the design in Kq and TL, the space of those two, and the list that the
+    calibration's simulations append their model counts to."""
     design = PlantParameters()
     unit = design.replace(Kq=design.Kq * 1.25, TL=design.TL * 0.75)
     aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
-    space = ModelSpace(design, {}, ("Kq", "TL"))
     models: list[int] = []
 
     def counted(*args: object, **kwargs: object) -> object:
@@ -76,19 +75,48 @@ def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(m
         return simulate_sensors(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(calibrate, "simulate_sensors", counted)
-    cut = fit_output_error(aligned, space, max_nfev=2)
+    return aligned, ModelSpace(design, {}, ("Kq", "TL")), models
+
+
+def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
+    that ended that fit, and is taken from it (issue 12, item 5) — the same fit, one simulation per coordinate and
+    one for the point fewer."""
+    aligned, space, models = _counted(monkeypatch)
+    memo = calibrate.LastJacobian()
+    cut = fit_output_error(aligned, space, max_nfev=2, memo=memo)
     models.clear()
-    continued = fit_output_error(aligned, space, cut.z, max_nfev=3)
+    continued = fit_output_error(aligned, space, cut.z, max_nfev=3, memo=memo)
     with_reuse = sum(models)
-    monkeypatch.setattr(calibrate, "_LAST_JACOBIAN", calibrate._LastJacobian())  # nothing kept
     models.clear()
-    fresh = fit_output_error(aligned, space, cut.z, max_nfev=3)
+    fresh = fit_output_error(aligned, space, cut.z, max_nfev=3)  # no memo: nothing taken
     assert sum(models) == with_reuse + 3
     assert fresh.z.tobytes() == continued.z.tobytes() and fresh.fit_cost == continued.fit_cost
     # Kept for that recording only: the same samples in another recording object are simulated again.
-    again = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
-    fit_output_error(aligned, space, max_nfev=2)
+    again = replace(aligned)
+    fit_output_error(aligned, space, max_nfev=2, memo=memo)
     models.clear()
-    fit_output_error(again, space, cut.z, max_nfev=3)
+    fit_output_error(again, space, cut.z, max_nfev=3, memo=memo)
     assert sum(models) == with_reuse + 3
 
+
+def test_two_diagnoses_neither_see_nor_replace_each_others_kept_simulations(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The kept Jacobian belongs to one diagnosis (issue 12, review of the eighth pass: it was one slot for the
+    process): another analysis's fits, in between or on the same recording, neither take it nor replace it, and a
+    fit without an owner keeps nothing."""
+    aligned, space, models = _counted(monkeypatch)
+    first, second = calibrate.LastJacobian(), calibrate.LastJacobian()
+    cut = fit_output_error(aligned, space, max_nfev=2, memo=first)
+    assert len(first.predictions) == 3 and not second.predictions
+    # The other diagnosis continues the same fit on the same recording: it does not see the first one's simulations.
+    models.clear()
+    fit_output_error(aligned, space, cut.z, max_nfev=3, memo=second)
+    unseeded = sum(models)
+    # A fit of the other diagnosis (another space) in between does not replace what the first one kept ...
+    fit_output_error(aligned, replace(space, plant_free=("Kq",)), max_nfev=2, memo=second)
+    fit_output_error(aligned, replace(space, plant_free=("TL",)), max_nfev=2)
+    # ... so the first one's continuation still takes its three simulations.
+    models.clear()
+    fit_output_error(aligned, space, cut.z, max_nfev=3, memo=first)
+    assert sum(models) == unseeded - 3
+    assert not hasattr(calibrate, "_LAST_JACOBIAN")

@@ -140,15 +140,18 @@ class _Objective:
                                 for p, h, zi in zip(preds[1:], steps, points[1:])])
 
 
-class _LastJacobian:
-    """The simulations of the last fit's final Jacobian (its end point and each coordinate's step), kept for
-    one continuation of that fit (issue 12, item 5).
+class LastJacobian:
+    """The simulations of the last kept fit's final Jacobian (its end point and each coordinate's step), kept for
+    one continuation of that fit (issue 12, item 5), by one owner: one diagnosis (diagnose.py makes one and
+    passes it to the fits it may continue and to their continuations, hypothesis.py).
 
     A continuation (hypothesis.polish, hypothesis.settle) restarts the solver at the fit's end point in the
     same model space, and the solver's first act is the Jacobian there: the same simulations, one per
     coordinate (20 of the 120 s record for a unit with one effect), that ended the fit before. One slot,
     matched by the recording's identity, the space's equality and the error band; a simulation depends on
-    nothing else, so a continuation that finds them is the same fit, without those simulations.
+    nothing else, so a continuation that finds them is the same fit, without those simulations. The slot lives
+    as long as its owner (about 10 MB for a 120 s record), and two analyses, each with its own, never see or
+    replace each other's simulations (until issue 12's review it was one module-level slot for the process).
     """
 
     def __init__(self) -> None:
@@ -171,9 +174,6 @@ class _LastJacobian:
             objective.cache.update(self.predictions)
 
 
-_LAST_JACOBIAN = _LastJacobian()
-
-
 def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
     """n_eff / n of an AR(1)-like residual, from its lag-1 autocorrelation per sensor (≤ 1)."""
     fractions = []
@@ -187,7 +187,7 @@ def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
 
 def fit_output_error(
     aligned: AlignedRecording, space: ModelSpace, z0: np.ndarray | None = None, *, max_nfev: int = 12,
-    band_hz: float | None = None, stall: bool = True,
+    band_hz: float | None = None, stall: bool = True, memo: LastJacobian | None = None,
 ) -> OutputErrorFit:
     """Estimate the free coordinates of ``space`` by bounded least squares on the simulation error.
 
@@ -205,13 +205,17 @@ def fit_output_error(
     stall : bool, default True
         Stop once the cost stops falling (STALL_DROP over STALL_ITERATIONS iterations); False: only
         on the solver's tolerances or ``max_nfev`` (the calibration without effects, :func:`calibrate`).
+    memo : LastJacobian, optional
+        Where this fit takes the simulations that ended the fit it continues (when it continues the fit kept
+        there) and keeps its own final Jacobian's (default: neither).
 
     Returns
     -------
     OutputErrorFit
     """
     objective = _Objective(aligned, space, band_hz)
-    _LAST_JACOBIAN.seed(objective, band_hz)
+    if memo is not None:
+        memo.seed(objective, band_hz)
     lo, hi = space.bounds()
     start = np.clip(space.start() if z0 is None else np.asarray(z0, dtype=float), lo + 1e-9, hi - 1e-9)
     trace: list[float] = []
@@ -234,7 +238,8 @@ def fit_output_error(
         r = objective.fun(z)
         jac = np.zeros((r.size, 0))
     prediction = objective.simulate([z])[0]
-    _LAST_JACOBIAN.keep(objective, band_hz)
+    if memo is not None:
+        memo.keep(objective, band_hz)
     params, effects = space.model(z)
     values = space.values(z)
     n_prior = space.prior_residuals(z).size
