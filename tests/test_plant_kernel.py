@@ -1,5 +1,6 @@
 """The compiled kernel: its inlined integrator is classical RK4 over the right-hand side, effects that
-are switched on but do nothing leave the nominal path bit for bit, and it runs beside other threads."""
+are switched on but do nothing leave the nominal path bit for bit, a sample's sensors do not depend on the
+command (the kernel takes them from the interval's first RK4 stage), and it runs beside other threads."""
 
 from concurrent.futures import ThreadPoolExecutor
 
@@ -62,6 +63,42 @@ def test_kernel_step_is_classical_rk4_over_the_array_right_hand_side():
     assert np.ptp(flow) > 0.5  # a real transient, L/min
     assert np.array_equal(out["flow"], flow)
     assert np.array_equal(sim.state[0, :N_ODE], y)
+
+
+LIVE = {  # every effect on at a magnitude where it acts
+    "stribeck_friction": {"Tc": 0.2, "Ts": 1.0},
+    "quadratic_drag": {"Kd": 0.03},
+    "valve_deadband": {"d": 0.1},
+    "valve_saturation": {"x_max": 0.5},
+    "entrained_air": {"alpha": 0.05},
+    "pump_ripple": {"a1": 0.1, "a2": 0.05},
+    "thermal_drift": {"T_start": 35.0, "T_end": 70.0, "tau": 100.0},
+    "gear_backlash": {"b": 0.02},
+    "shaft_compliance": {"G": 800.0},
+}
+
+
+def test_the_sensors_of_a_state_do_not_depend_on_the_command():
+    """The kernel reads sample k's sensors from the right-hand side evaluated with the interval's command (its
+    first RK4 stage, issue 12 item 5): the same numbers only while the command moves nothing but the spool's
+    acceleration. Every effect, states across the range, commands −4 and 3.7 V: the same sensors bit for bit."""
+    p = PlantParameters()
+    rng = np.random.default_rng(7)
+    coef = np.empty(N_COEF + N_LOAD)
+    coefficients(p.as_array(), coef)
+    ds, sensors = np.empty(N_ODE), np.empty(3)
+    for effects in (None, *({k: v} for k, v in LIVE.items()), LIVE, {"sensor_lowpass": {"sensor": 2.0}}):
+        row = effect_row(effects)
+        for _ in range(20):
+            y = np.array([rng.uniform(-1, 1), rng.normal(0, 50), rng.uniform(0, 2.2e7), rng.uniform(-1e7, 1e7),
+                          rng.normal(0, 100), rng.normal(0, 30), rng.normal(0, 0.03), rng.uniform(30, 70),
+                          rng.normal(0, 5)])
+            read = []
+            for u in (-4.0, 3.7):
+                rates(coef, row, y, u, 1.3, True, ds, sensors)
+                read.append(sensors.copy())
+            assert np.array_equal(read[0], read[1]), effects
+            assert np.all(np.isfinite(read[0]))
 
 
 def test_simulators_in_threads_equal_serial_runs():
