@@ -9,7 +9,7 @@ import numpy as np
 from hydrowatch.plant import CHANNELS, PlantParameters, PlantSimulator
 from hydrowatch.plant.dynamics import N_COEF, N_LOAD, N_ODE, PL, PS, coefficients, rates
 from hydrowatch.plant.effects import effect_row
-from hydrowatch.plant.kernel import _advance_compiled
+from hydrowatch.plant.kernel import CHANNELS_OUT, _advance_compiled
 
 INERT = {  # every effect here is on, with the setting at which its physics vanishes exactly
     "stribeck_friction": {"Tc": 0.0, "Ts": 0.0},
@@ -99,6 +99,32 @@ def test_the_sensors_of_a_state_do_not_depend_on_the_command():
                 read.append(sensors.copy())
             assert np.array_equal(read[0], read[1]), effects
             assert np.all(np.isfinite(read[0]))
+
+
+def test_settling_ends_once_the_state_stops_changing_with_the_same_state_and_outputs():
+    """Settling (clock stopped, constant command, no noise) stops at the first sample that leaves the state unchanged
+    bit for bit and repeats that sample's outputs (issue 12, item 5): the same state and every output as settling one
+    sample per call, for machines that reach that point (nominal, backlash, hysteresis) and one whose play operator
+    and a second command level keep it moving."""
+    machines = [PlantParameters(), PlantParameters(TL=14.0), PlantParameters(Kq=PlantParameters().Kq * 1.2)]
+    effects = [None, {"gear_backlash": {"b": 0.02}}, {"valve_hysteresis": {"r": 0.2}}]
+    n = 600
+    levels = np.array([[2.2] * n, [-1.5] * n, [0.7] * (n // 2) + [1.9] * (n // 2)])
+    whole = PlantSimulator(machines, effects, noise=False)
+    whole_out = np.empty((3, n, CHANNELS_OUT))
+    one = PlantSimulator(machines, effects, noise=False)
+    one_out = np.empty_like(whole_out)
+    no_noise = np.empty((0, 0, 3))
+    state = whole._state
+    _advance_compiled(whole._params, whole._effects, state, levels, no_noise, whole_out, 200.0, 0.0, 10, False)
+    sample = np.empty((3, 1, CHANNELS_OUT))
+    for k in range(n):
+        _advance_compiled(one._params, one._effects, one._state, levels[:, k : k + 1].copy(), no_noise, sample,
+                          200.0, 0.0, 10, False)
+        one_out[:, k] = sample[:, 0]
+    assert np.array_equal(state, one._state)
+    assert np.array_equal(whole_out, one_out)
+    assert np.ptp(whole_out[2, :, 0]) > 1.0  # the last machine really moves (flow, L/min)
 
 
 def test_simulators_in_threads_equal_serial_runs():
