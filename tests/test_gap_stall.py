@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from hydrowatch.gap import calibrate, hypothesis
@@ -120,3 +121,20 @@ def test_two_diagnoses_neither_see_nor_replace_each_others_kept_simulations(monk
     fit_output_error(aligned, space, cut.z, max_nfev=3, memo=first)
     assert sum(models) == unseeded - 3
     assert not hasattr(calibrate, "_LAST_JACOBIAN")
+
+
+def test_a_full_cache_keeps_the_points_of_the_call_that_empties_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fit's bounded cache forgets older simulations, not those of the call that overflows it: the Jacobian at
+    the solver's point finds that point cached, and the fit's prediction there is not simulated again (issue 12,
+    item 5: a fit whose last Jacobian overflowed the cache simulated its end point twice)."""
+    aligned, space, models = _counted(monkeypatch)
+    objective = calibrate._Objective(aligned, space)
+    older = [np.array([0.001 * i, 0.0]) for i in range(64)]
+    objective.simulate(older)
+    point, step = np.array([0.05, 0.05]), np.array([0.06, 0.05])
+    objective.simulate([point])
+    models.clear()
+    objective.simulate([point, step])  # overflows the cache: the older points go
+    assert sum(models) == 1
+    objective.simulate([point, step])
+    assert sum(models) == 1 and older[0].tobytes() not in objective.cache

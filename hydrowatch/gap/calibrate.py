@@ -113,7 +113,10 @@ class _Objective:
             preds = simulate_sensors(self.aligned, [m[0] for m in models], [m[1] for m in models])
             self.n_sim += len(todo)
             if len(self.cache) > 64:
+                # Bounded: forget older points, not this call's (the solver's point, found here, is simulated
+                # again otherwise when the fit ends on it).
                 self.cache.clear()
+                self.cache.update(found)
             for z, p in zip(todo, preds):
                 self.cache[z.tobytes()] = found[z.tobytes()] = p
         return [found[z.tobytes()] for z in points]
