@@ -57,6 +57,9 @@ def test_a_model_kept_is_not_simulated_again_and_serves_the_heads(monkeypatch: p
 
 
 def test_two_analyses_keep_their_own_and_a_bounded_amount(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two analyses of the same samples (two recording objects, as two threads of one process would hold) neither
+    see nor push out each other's simulations (issue 12: the Jacobian kept for a continuation was one slot for the
+    process until this pass); each keeps at most LIMIT_BYTES per prediction length, and nothing once emptied."""
     one, other = _recording(), _recording()
     models = _counted(monkeypatch)
     simulate_sensors(one, [DESIGN], [None])
@@ -69,5 +72,9 @@ def test_two_analyses_keep_their_own_and_a_bounded_amount(monkeypatch: pytest.Mo
     assert len(kept) == 2  # the oldest went
     simulate_sensors(one, [DESIGN], [None])
     assert models == [1, 1, 3, 1]
+    # The heads of a screen have their own share: thirty of them do not push out the whole-record simulations.
+    simulate_sensors(one.head(1.0), [DESIGN.replace(BL=DESIGN.BL * (1 + 0.01 * i)) for i in range(1, 31)], [None] * 30)
+    simulate_sensors(one, [DESIGN, DESIGN.replace(TL=DESIGN.TL * 1.03)], [None, None])
+    assert models == [1, 1, 3, 1, 30]
     kept.clear()
-    assert len(kept) == 0 and kept.simulated == 5
+    assert len(kept) == 0 and kept.simulated == 35

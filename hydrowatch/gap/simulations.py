@@ -11,7 +11,8 @@ for bit). So a model kept here is never simulated again, by this analysis, for a
 numbers, without the simulation.
 
 The keeper belongs to one :class:`~hydrowatch.gap.align.AlignedRecording` (and its heads), made by one analysis,
-holds at most LIMIT_BYTES of predictions (the least recently used go first) and is emptied when that analysis ends.
+holds at most LIMIT_BYTES of predictions of each length (the least recently used go first: a screen's heads do not push
+out the whole-record simulations a continuation needs) and is emptied when that analysis ends.
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ from hydrowatch.plant.effects import Effects, effect_row
 from hydrowatch.plant.parameters import PlantParameters
 
 LIMIT_BYTES = 48 * 2**20
-"""Most bytes of predictions kept (about 80 simulations of a 120 s record)."""
+"""Most bytes of predictions kept per prediction length (about 80 simulations of a 120 s record, or 700 of its
+14 s screening head; an analysis asks for those two lengths, so at most twice this)."""
+
 
 Key = tuple[bytes, bytes]
 """A model as the kernel sees it: its parameter row and effect row, bit for bit."""
@@ -36,14 +39,15 @@ class Simulations:
     Attributes
     ----------
     simulated : int
-        Models simulated through :meth:`missing` since the keeper was made.
+        Models simulated (by :func:`~hydrowatch.gap.align.simulate_sensors`) and kept since the keeper was made.
     reused : int
         Models taken from it instead.
     """
 
     def __init__(self) -> None:
-        self._kept: OrderedDict[Key, np.ndarray] = OrderedDict()
-        self._bytes = 0
+        self._kept: dict[Key, np.ndarray] = {}
+        self._order: dict[int, OrderedDict[Key, None]] = {}  # per length: the keys, least recently used first
+        self._bytes: dict[int, int] = {}  # per length: bytes kept
         self.simulated = 0
         self.reused = 0
 
@@ -57,24 +61,27 @@ class Simulations:
         kept = self._kept.get(key)
         if kept is None or kept.shape[1] < n:
             return None
-        self._kept.move_to_end(key)
+        self._order[kept.shape[1]].move_to_end(key)
         self.reused += 1
         return kept[:, :n].copy()
 
     def keep(self, key: Key, prediction: np.ndarray) -> None:
-        """Keep ``prediction`` (shape (3, n)) unless a longer one of the model is kept; drop the oldest beyond
-        LIMIT_BYTES."""
+        """Keep ``prediction`` (shape (3, n)) unless one as long of the model is kept; drop the least recently used of
+        that length beyond LIMIT_BYTES."""
         old = self._kept.get(key)
         if old is not None:
             if old.shape[1] >= prediction.shape[1]:
                 return
-            self._bytes -= old.nbytes
+            del self._order[old.shape[1]][key]
+            self._bytes[old.shape[1]] -= old.nbytes
+        n = prediction.shape[1]
         self._kept[key] = prediction.copy()
-        self._kept.move_to_end(key)
-        self._bytes += prediction.nbytes
-        while self._bytes > LIMIT_BYTES and len(self._kept) > 1:
-            _, dropped = self._kept.popitem(last=False)
-            self._bytes -= dropped.nbytes
+        order = self._order.setdefault(n, OrderedDict())
+        order[key] = None
+        self._bytes[n] = self._bytes.get(n, 0) + prediction.nbytes
+        while len(order) > 1 and self._bytes[n] > LIMIT_BYTES:
+            dropped, _ = order.popitem(last=False)
+            self._bytes[n] -= self._kept.pop(dropped).nbytes
 
     def __len__(self) -> int:
         """How many models are kept."""
@@ -83,4 +90,5 @@ class Simulations:
     def clear(self) -> None:
         """Forget every kept prediction (the counts stay)."""
         self._kept.clear()
-        self._bytes = 0
+        self._order.clear()
+        self._bytes.clear()
