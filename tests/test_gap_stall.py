@@ -1,7 +1,8 @@
 """A fit ends when its cost stops falling, a converged confirmation is not polished again (issue 12,
 item 5: the analysis' time goes to simulations, one batched call per solver iteration), and an accepted
 model whose fit still moves is continued before the next round (issue 12, the settle step); a continuation reuses
-the simulations that ended its fit (issue 12, eighth pass)."""
+the simulations that ended its fit (issue 12, eighth pass; now through the recording's kept simulations), and a
+fit's own cache keeps the points of the call that fills it."""
 
 from __future__ import annotations
 
@@ -10,10 +11,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from hydrowatch.gap import align as aligning
 from hydrowatch.gap import calibrate, hypothesis
 from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
 from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
+from hydrowatch.gap.simulations import Simulations
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
@@ -81,46 +84,27 @@ def _counted(monkeypatch: pytest.MonkeyPatch) -> tuple[AlignedRecording, ModelSp
 
 def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
     """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
-    that ended that fit, and is taken from it (issue 12, item 5) — the same fit, one simulation per coordinate and
-    one for the point fewer."""
-    aligned, space, models = _counted(monkeypatch)
-    memo = calibrate.LastJacobian()
-    cut = fit_output_error(aligned, space, max_nfev=2, memo=memo)
+    that ended that fit, and the recording's kept simulations give it (issue 12, item 5; gap/simulations.py) — the
+    same fit, one simulation per coordinate and one for the point fewer. Another analysis of the same samples (its
+    own recording object) simulates them again."""
+    aligned, space, _ = _counted(monkeypatch)
+    models: list[int] = []
+    original = aligning._simulate_models
+
+    def simulated(*args: object) -> object:
+        models.append(len(args[1]))  # type: ignore[arg-type]
+        return original(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(aligning, "_simulate_models", simulated)
+    cut = fit_output_error(aligned, space, max_nfev=2)
     models.clear()
-    continued = fit_output_error(aligned, space, cut.z, max_nfev=3, memo=memo)
+    continued = fit_output_error(aligned, space, cut.z, max_nfev=3)
     with_reuse = sum(models)
+    other = replace(aligned, simulations=Simulations())
     models.clear()
-    fresh = fit_output_error(aligned, space, cut.z, max_nfev=3)  # no memo: nothing taken
+    fresh = fit_output_error(other, space, cut.z, max_nfev=3)
     assert sum(models) == with_reuse + 3
     assert fresh.z.tobytes() == continued.z.tobytes() and fresh.fit_cost == continued.fit_cost
-    # Kept for that recording only: the same samples in another recording object are simulated again.
-    again = replace(aligned)
-    fit_output_error(aligned, space, max_nfev=2, memo=memo)
-    models.clear()
-    fit_output_error(again, space, cut.z, max_nfev=3, memo=memo)
-    assert sum(models) == with_reuse + 3
-
-
-def test_two_diagnoses_neither_see_nor_replace_each_others_kept_simulations(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The kept Jacobian belongs to one diagnosis (issue 12, review of the eighth pass: it was one slot for the
-    process): another analysis's fits, in between or on the same recording, neither take it nor replace it, and a
-    fit without an owner keeps nothing."""
-    aligned, space, models = _counted(monkeypatch)
-    first, second = calibrate.LastJacobian(), calibrate.LastJacobian()
-    cut = fit_output_error(aligned, space, max_nfev=2, memo=first)
-    assert len(first.predictions) == 3 and not second.predictions
-    # The other diagnosis continues the same fit on the same recording: it does not see the first one's simulations.
-    models.clear()
-    fit_output_error(aligned, space, cut.z, max_nfev=3, memo=second)
-    unseeded = sum(models)
-    # A fit of the other diagnosis (another space) in between does not replace what the first one kept ...
-    fit_output_error(aligned, replace(space, plant_free=("Kq",)), max_nfev=2, memo=second)
-    fit_output_error(aligned, replace(space, plant_free=("TL",)), max_nfev=2)
-    # ... so the first one's continuation still takes its three simulations.
-    models.clear()
-    fit_output_error(aligned, space, cut.z, max_nfev=3, memo=first)
-    assert sum(models) == unseeded - 3
-    assert not hasattr(calibrate, "_LAST_JACOBIAN")
 
 
 def test_a_full_cache_keeps_the_points_of_the_call_that_empties_it(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -170,8 +170,8 @@ def test_a_candidate_the_quick_screen_ranks_below_zero_gets_a_second_look_with_t
     monkeypatch.setattr(screening, "scan_magnitude", scan)
     monkeypatch.setattr(screening, "fit_output_error", lambda data, space, **kw: Fit(TRUTH[:, : data.t.size], {}, 0))
     monkeypatch.setattr(stepwise, "recalibrate", full)
-    monkeypatch.setattr(stepwise, "polish", lambda a, refit, **kw: refit)
-    monkeypatch.setattr(stepwise, "settle", lambda a, fit, **kw: fit)
+    monkeypatch.setattr(stepwise, "polish", lambda a, refit: refit)
+    monkeypatch.setattr(stepwise, "settle", lambda a, fit: fit)
     monkeypatch.setattr(stepwise, "residual_test", lambda a, prediction, k: SimpleNamespace(
         fails=prediction is not found.prediction))
     diagnosis = stepwise.diagnose(aligned, current, candidates)  # type: ignore[arg-type]

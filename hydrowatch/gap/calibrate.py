@@ -96,7 +96,6 @@ class _Objective:
         self.sos = None if band_hz is None else signal.butter(2, band_hz, fs=SAMPLE_RATE_HZ, output="sos")
         self.cache: dict[bytes, np.ndarray] = {}
         self.n_sim = 0
-        self.last_jacobian: list[bytes] = []
 
     def _residuals(self, prediction: np.ndarray) -> np.ndarray:
         a = self.aligned
@@ -136,45 +135,10 @@ class _Objective:
             zi[i] += h
             steps.append(h)
             points.append(zi)
-        self.last_jacobian = [p.tobytes() for p in points]
         preds = self.simulate(points)
         r0 = np.concatenate([self._residuals(preds[0]), self.space.prior_residuals(z)])
         return np.column_stack([(np.concatenate([self._residuals(p), self.space.prior_residuals(zi)]) - r0) / h
                                 for p, h, zi in zip(preds[1:], steps, points[1:])])
-
-
-class LastJacobian:
-    """The simulations of the last kept fit's final Jacobian (its end point and each coordinate's step), kept for
-    one continuation of that fit (issue 12, item 5), by one owner: one diagnosis (diagnose.py makes one and
-    passes it to the fits it may continue and to their continuations, hypothesis.py).
-
-    A continuation (hypothesis.polish, hypothesis.settle) restarts the solver at the fit's end point in the
-    same model space, and the solver's first act is the Jacobian there: the same simulations, one per
-    coordinate (20 of the 120 s record for a unit with one effect), that ended the fit before. One slot,
-    matched by the recording's identity, the space's equality and the error band; a simulation depends on
-    nothing else, so a continuation that finds them is the same fit, without those simulations. The slot lives
-    as long as its owner (about 10 MB for a 120 s record), and two analyses, each with its own, never see or
-    replace each other's simulations (until issue 12's review it was one module-level slot for the process).
-    """
-
-    def __init__(self) -> None:
-        self.key: tuple[AlignedRecording, ModelSpace, float | None] | None = None
-        self.predictions: dict[bytes, np.ndarray] = {}
-
-    def keep(self, objective: _Objective, band_hz: float | None) -> None:
-        """Keep ``objective``'s final Jacobian simulations (replacing the ones kept before)."""
-        points = objective.last_jacobian
-        if not points or any(p not in objective.cache for p in points):
-            self.key, self.predictions = None, {}
-            return
-        self.key = (objective.aligned, objective.space, band_hz)
-        self.predictions = {p: objective.cache[p] for p in points}
-
-    def seed(self, objective: _Objective, band_hz: float | None) -> None:
-        """Give ``objective`` the kept simulations when it continues the kept fit."""
-        key = self.key
-        if key is not None and key[0] is objective.aligned and key[1] == objective.space and key[2] == band_hz:
-            objective.cache.update(self.predictions)
 
 
 def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
@@ -190,7 +154,7 @@ def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
 
 def fit_output_error(
     aligned: AlignedRecording, space: ModelSpace, z0: np.ndarray | None = None, *, max_nfev: int = 12,
-    band_hz: float | None = None, stall: bool = True, memo: LastJacobian | None = None,
+    band_hz: float | None = None, stall: bool = True,
 ) -> OutputErrorFit:
     """Estimate the free coordinates of ``space`` by bounded least squares on the simulation error.
 
@@ -208,17 +172,12 @@ def fit_output_error(
     stall : bool, default True
         Stop once the cost stops falling (STALL_DROP over STALL_ITERATIONS iterations); False: only
         on the solver's tolerances or ``max_nfev`` (the calibration without effects, :func:`calibrate`).
-    memo : LastJacobian, optional
-        Where this fit takes the simulations that ended the fit it continues (when it continues the fit kept
-        there) and keeps its own final Jacobian's (default: neither).
 
     Returns
     -------
     OutputErrorFit
     """
     objective = _Objective(aligned, space, band_hz)
-    if memo is not None:
-        memo.seed(objective, band_hz)
     lo, hi = space.bounds()
     start = np.clip(space.start() if z0 is None else np.asarray(z0, dtype=float), lo + 1e-9, hi - 1e-9)
     trace: list[float] = []
@@ -241,8 +200,6 @@ def fit_output_error(
         r = objective.fun(z)
         jac = np.zeros((r.size, 0))
     prediction = objective.simulate([z])[0]
-    if memo is not None:
-        memo.keep(objective, band_hz)
     params, effects = space.model(z)
     values = space.values(z)
     n_prior = space.prior_residuals(z).size

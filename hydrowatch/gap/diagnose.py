@@ -52,7 +52,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import LastJacobian, OutputErrorFit, fit_output_error
+from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
 from hydrowatch.gap.candidates import Candidate, Refit, Scan, holdout_cost, untestable
 from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.hypothesis import polish, recalibrate, settle
@@ -298,7 +298,6 @@ def diagnose(
     diagnosis = Diagnosis(calibrated, unrevealable=untestable(candidates, aligned, calibrated.prediction[1]))
     testable = [c for c in candidates if c.label not in diagnosis.unrevealable]
     current = calibrated
-    memo = LastJacobian()  # this diagnosis's: a continuation takes the simulations that ended the fit it continues
 
     def confirm_ranked(screened: list[Screened], floor: float = 0.0) -> list[Trial]:
         """The round's trials: the best ``confirm`` screened at a gain > ``floor`` get the full calibration under
@@ -308,7 +307,7 @@ def diagnose(
         for rank, (screen_gain, s, data, base) in enumerate(screened):
             if rank < confirm and screen_gain > floor and _worth_confirming(trials, screen_gain, lead, s.candidate):
                 full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp,
-                                   design_start=not diagnosis.accepted, memo=memo)
+                                   design_start=not diagnosis.accepted)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
@@ -359,7 +358,7 @@ def diagnose(
             passed = [t for t in trials if t.passed]
             if not passed:
                 break
-        polished = {id(t): polish(aligned, t.refit, memo=memo) for t in passed}
+        polished = {id(t): polish(aligned, t.refit) for t in passed}
         if len(passed) > 1:
             # Rivals are compared polished: an unconverged confirmation (a backlash fit that used every
             # iteration) lost to compliance on dev population 7, and won the next round by 98 %.
@@ -368,8 +367,7 @@ def diagnose(
         else:
             winner = passed[0]
         diagnosis.accepted.append(winner)
-        current = _prune(aligned, diagnosis, settle(aligned, polished[id(winner)].fit, memo=memo), min_gain, n_se,
-                         min_bic)
+        current = _prune(aligned, diagnosis, settle(aligned, polished[id(winner)].fit), min_gain, n_se, min_bic)
     diagnosis.final = current
     return diagnosis
 

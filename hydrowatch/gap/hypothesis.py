@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import LastJacobian, OutputErrorFit, fit_output_error, prior_weight, static_stage
+from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error, prior_weight, static_stage
 from hydrowatch.gap.candidates import Refit, holdout_cost, scan_magnitude
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.log import event, get_logger
@@ -31,8 +31,7 @@ cost stops falling first, calibrate.STALL_DROP; none when the confirmation conve
 
 
 def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Refit,
-                nominal: PlantParameters | None, pump: float | None = None, *, design_start: bool = True,
-                memo: LastJacobian | None = None) -> Refit:
+                nominal: PlantParameters | None, pump: float | None = None, *, design_start: bool = True) -> Refit:
     """The full calibration (calibrate.py) under the hypothesis "current model + the screened effect":
     every plant parameter and every free effect parameter estimated, with the accepted effects and the
     candidate's screened values as the effects' starting point.
@@ -54,9 +53,6 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     once the model holds an accepted effect (issue 12, item 5: a static stage is 92–135 simulations of
     120 s, and in every later-round confirmation logged on populations 7 and 2035 — 11 of 11, on three
     recordings — the current start won; the design start won only in round 1, gear backlash on 2035).
-
-    ``memo``: the diagnosis's :class:`LastJacobian`, where the joint fit keeps its final Jacobian's simulations
-    for a polish that continues it.
     """
     c = screened.candidate
     screened_effect = screened.fit.effects[c.id]
@@ -80,24 +76,23 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     if c.id == "stribeck_friction":
         effects[c.id]["Tc"] = min(effects[c.id]["Tc"], value)
     space = ModelSpace(start, effects, free, effect_free, design if prior else None, weight)
-    fit = fit_output_error(aligned, space, max_nfev=JOINT_NFEV, memo=memo)
+    fit = fit_output_error(aligned, space, max_nfev=JOINT_NFEV)
     event(log, "hypothesis start", effect=c.label, start="design" if start is static else "current",
           value=round(value, 6))
     return Refit(c, fit, holdout_cost(aligned, fit.prediction))
 
 
-def polish(aligned: AlignedRecording, refit: Refit, memo: LastJacobian | None = None) -> Refit:
+def polish(aligned: AlignedRecording, refit: Refit) -> Refit:
     """The confirmed fit continued for POLISH_NFEV more solver iterations; as it is when its fit
     converged already (its cost stopped falling, calibrate.STALL_DROP: polishing only continues a fit
-    its iteration limit cut short). ``memo``: the diagnosis's :class:`LastJacobian` (the confirmation's final
-    Jacobian, when it was the last kept; the polish keeps its own for a settle)."""
+    its iteration limit cut short)."""
     if refit.fit.converged:
         return refit
-    fit = fit_output_error(aligned, refit.fit.space, refit.fit.z, max_nfev=POLISH_NFEV, memo=memo)
+    fit = fit_output_error(aligned, refit.fit.space, refit.fit.z, max_nfev=POLISH_NFEV)
     return Refit(refit.candidate, fit, holdout_cost(aligned, fit.prediction))
 
 
-def settle(aligned: AlignedRecording, fit: OutputErrorFit, memo: LastJacobian | None = None) -> OutputErrorFit:
+def settle(aligned: AlignedRecording, fit: OutputErrorFit) -> OutputErrorFit:
     """The accepted model's joint fit continued, JOINT_NFEV solver iterations at a time (the budget a later
     round's confirmation gets from it), until its cost stops falling (the stall rule) or for SETTLE_RUNS such
     runs; as it is when it converged.
@@ -112,13 +107,12 @@ def settle(aligned: AlignedRecording, fit: OutputErrorFit, memo: LastJacobian | 
     later confirmation gets from it), the backlash fit of the fresh population 2061's pair still fell 7× in them
     (fitting cost 0.0163 → 0.0024); round 2 then credited a quadratic drag (gain 0.50) and a 0.15 ms transport
     delay (0.41, accepted) with the next 29 iterations, and the delay's model, polished and settled, converged
-    only at 0.0011 (docs/gap.md, "Seventh pass"): a fit is settled until it stops moving. ``memo``: the
-    diagnosis's :class:`LastJacobian` (each continuation takes the simulations that ended the fit before it).
+    only at 0.0011 (docs/gap.md, "Seventh pass"): a fit is settled until it stops moving.
     """
     for _ in range(SETTLE_RUNS):
         if fit.converged:
             break
-        continued = fit_output_error(aligned, fit.space, fit.z, max_nfev=JOINT_NFEV, memo=memo)
+        continued = fit_output_error(aligned, fit.space, fit.z, max_nfev=JOINT_NFEV)
         event(log, "accepted model settled", before=fit.fit_cost, after=continued.fit_cost,
               converged=continued.converged)
         if continued.fit_cost >= fit.fit_cost:
