@@ -4,6 +4,8 @@ simulation gives, and two analyses keep their own."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -78,3 +80,23 @@ def test_two_analyses_keep_their_own_and_a_bounded_amount(monkeypatch: pytest.Mo
     assert models == [1, 1, 3, 1, 30]
     kept.clear()
     assert len(kept) == 0 and kept.simulated == 35
+
+
+def test_a_copy_with_another_command_is_simulated_afresh(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The kept simulations are of one command: a recording object copied with another command (or start time) keeps
+    the same keeper but is never served from it."""
+    aligned = _recording()
+    simulate_sensors(aligned, [DESIGN], [None])
+    models = _counted(monkeypatch)
+    louder = replace(aligned, voltage=aligned.voltage * 0.9)
+    later = replace(aligned, t=aligned.t + 1.0)
+    assert louder.simulations is aligned.simulations
+    moved = simulate_sensors(louder, [DESIGN], [None])
+    simulate_sensors(later, [DESIGN], [None])
+    assert models == [1, 1]
+    assert np.array_equal(moved, simulate_sensors(align_like(louder), [DESIGN], [None]))
+
+
+def align_like(aligned: aligning.AlignedRecording) -> aligning.AlignedRecording:
+    """The same samples in a recording object of their own (its own kept simulations)."""
+    return replace(aligned, simulations=simulations.Simulations())

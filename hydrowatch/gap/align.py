@@ -163,10 +163,10 @@ def simulate_sensors(
     numbers: issue 12, item 5), and every model simulated here is kept there.
     """
     params, effs = list(parameters), list(effects)
-    if not params:
+    kept = aligned.simulations
+    if not params or not kept.serves(aligned.voltage, float(aligned.t[0])):
         return _simulate_models(aligned, params, effs, stop)
     n = aligned.voltage[:stop].size
-    kept = aligned.simulations
     keys = [kept.key(p, e) for p, e in zip(params, effs)]
     out: list[np.ndarray | None] = [kept.take(k, n) for k in keys]
     todo: dict[tuple[bytes, bytes], int] = {}

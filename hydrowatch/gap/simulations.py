@@ -48,8 +48,18 @@ class Simulations:
         self._kept: dict[Key, np.ndarray] = {}
         self._order: dict[int, OrderedDict[Key, None]] = {}  # per length: the keys, least recently used first
         self._bytes: dict[int, int] = {}  # per length: bytes kept
+        self._command: tuple[int, int, float] | None = None  # the command's buffer address, stride and t0
         self.simulated = 0
         self.reused = 0
+
+    def serves(self, voltage: np.ndarray, t0: float) -> bool:
+        """Whether these kept simulations are of this command (the recording's, or a head of it: the same buffer from
+        its first sample, the same start time t0 [s]); the first command asked binds them. A recording object copied
+        with another command (``dataclasses.replace``) is simulated afresh, never served another's simulations."""
+        command = (voltage.__array_interface__["data"][0], voltage.strides[0], float(t0))
+        if self._command is None:
+            self._command = command
+        return self._command == command
 
     @staticmethod
     def key(parameters: PlantParameters, effects: Effects | None) -> Key:
