@@ -1,7 +1,8 @@
 """Where one gap analysis spends its simulations (issue 12, item 5): one run of the population bench, counted.
 
-Every batched simulation the analysis asks for is counted in simulations of the whole record (a model
-simulated over the 14 s screening head counts 14/120) and its process CPU time, both by the analysis step
+Every model the analysis simulates (not one taken from its kept simulations, gap/simulations.py) is counted
+in simulations of the whole record (a model simulated over the 14 s screening head counts 14/120) and its
+process CPU time, both by the analysis step
 that asked for it (the innermost of calibrate, screen, recalibrate, polish, settle, _absorb, _prune,
 identify on the call stack). Prints the bench's row (named, right, wall and CPU seconds, load) with
 ``sims`` (per step and ``total``), ``sim_cpu`` (CPU s per step) and ``sims_by_length``.
@@ -27,7 +28,6 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_gap_population as bench  # noqa: E402
 
-import hydrowatch.gap  # noqa: E402, F401  (imports every gap module that holds simulate_sensors)
 from hydrowatch.gap import align  # noqa: E402
 from hydrowatch.log import configure  # noqa: E402
 from hydrowatch.recording import SAMPLE_RATE_HZ  # noqa: E402
@@ -42,13 +42,15 @@ REFERENCE_SEED = 2035
 
 
 class Counter:
-    """A stand-in for ``simulate_sensors`` that counts what each step simulates (records, CPU s)."""
+    """A stand-in for the simulation behind ``simulate_sensors`` that counts what each step simulates (records,
+    CPU s): the models actually simulated, not those taken from the analysis's kept simulations
+    (gap/simulations.py)."""
 
     def __init__(self) -> None:
         self.records: collections.Counter[str] = collections.Counter()
         self.by_length: collections.Counter[str] = collections.Counter()
         self.cpu: collections.Counter[str] = collections.Counter()
-        self.original = align.simulate_sensors
+        self.original = align._simulate_models
 
     def __call__(self, aligned: align.AlignedRecording, parameters: Any, effects: Any, stop: int | None = None) -> Any:
         names = [frame.name for frame in traceback.extract_stack()]
@@ -64,11 +66,8 @@ class Counter:
         return out
 
     def install(self) -> None:
-        """Put the counter in place of ``simulate_sensors`` in every gap module that imported it."""
-        for module in list(sys.modules.values()):
-            name = getattr(module, "__name__", "")
-            if name.startswith("hydrowatch.") and getattr(module, "simulate_sensors", None) is self.original:
-                module.simulate_sensors = self  # type: ignore[attr-defined]
+        """Put the counter in place of the simulation that ``simulate_sensors`` calls."""
+        align._simulate_models = self  # type: ignore[assignment]
 
 
 def main() -> None:

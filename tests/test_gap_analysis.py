@@ -198,7 +198,7 @@ def test_an_uneven_effect_is_judged_by_its_consistency_not_by_its_largest_blocks
     (a large bootstrap error), yet the cost falls in every block — that passes; a fit of the noise
     lowers some blocks and raises others — that does not."""
     from hydrowatch.gap.align import AlignedRecording
-    from hydrowatch.gap.diagnose import judge
+    from hydrowatch.gap.judge import judge
 
     rng = np.random.default_rng(7)
     n = 24 * 200

@@ -1,16 +1,22 @@
 """A fit ends when its cost stops falling, a converged confirmation is not polished again (issue 12,
 item 5: the analysis' time goes to simulations, one batched call per solver iteration), and an accepted
 model whose fit still moves is continued before the next round (issue 12, the settle step); a continuation reuses
-the simulations that ended its fit (issue 12, eighth pass)."""
+the simulations that ended its fit (issue 12, eighth pass; now through the recording's kept simulations), and a
+fit's own cache keeps the points of the call that fills it."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
+from hydrowatch.gap import align as aligning
 from hydrowatch.gap import calibrate, hypothesis
-from hydrowatch.gap.align import align, simulate_sensors
+from hydrowatch.gap.align import AlignedRecording, align, simulate_sensors
 from hydrowatch.gap.calibrate import fit_output_error
 from hydrowatch.gap.candidates import CANDIDATES, Refit, holdout_cost
+from hydrowatch.gap.simulations import Simulations
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.plant.excitation import filtered_noise
 from hydrowatch.plant.parameters import PlantParameters
@@ -60,15 +66,12 @@ def test_an_accepted_model_still_moving_after_one_continuation_is_continued_agai
     assert abs(settled.values["Kq"] / unit.Kq - 1.0) < abs(once.values["Kq"] / unit.Kq - 1.0)
 
 
-
-def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
-    that ended that fit, and is taken from it (issue 12, item 5) — the same fit, one simulation per coordinate and
-    one for the point fewer."""
+def _counted(monkeypatch: pytest.MonkeyPatch) -> tuple[AlignedRecording, ModelSpace, list[int]]:
+    """A 10 s record of a unit 25 % off the design in Kq and TL, the space of those two, and the list that the
+    calibration's simulations append their model counts to."""
     design = PlantParameters()
     unit = design.replace(Kq=design.Kq * 1.25, TL=design.TL * 0.75)
     aligned = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
-    space = ModelSpace(design, {}, ("Kq", "TL"))
     models: list[int] = []
 
     def counted(*args: object, **kwargs: object) -> object:
@@ -76,19 +79,46 @@ def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(m
         return simulate_sensors(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(calibrate, "simulate_sensors", counted)
+    return aligned, ModelSpace(design, {}, ("Kq", "TL")), models
+
+
+def test_a_continuation_reuses_the_simulations_that_ended_the_fit_it_continues(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A continuation (polish, settle) starts where its fit ended, in the same space: its first Jacobian is the one
+    that ended that fit, and the recording's kept simulations give it (issue 12, item 5; gap/simulations.py) — the
+    same fit, one simulation per coordinate and one for the point fewer. Another analysis of the same samples (its
+    own recording object) simulates them again."""
+    aligned, space, _ = _counted(monkeypatch)
+    models: list[int] = []
+    original = aligning._simulate_models
+
+    def simulated(*args: object) -> object:
+        models.append(len(args[1]))  # type: ignore[arg-type]
+        return original(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(aligning, "_simulate_models", simulated)
     cut = fit_output_error(aligned, space, max_nfev=2)
     models.clear()
     continued = fit_output_error(aligned, space, cut.z, max_nfev=3)
     with_reuse = sum(models)
-    monkeypatch.setattr(calibrate, "_LAST_JACOBIAN", calibrate._LastJacobian())  # nothing kept
+    other = replace(aligned, simulations=Simulations())
     models.clear()
-    fresh = fit_output_error(aligned, space, cut.z, max_nfev=3)
+    fresh = fit_output_error(other, space, cut.z, max_nfev=3)
     assert sum(models) == with_reuse + 3
     assert fresh.z.tobytes() == continued.z.tobytes() and fresh.fit_cost == continued.fit_cost
-    # Kept for that recording only: the same samples in another recording object are simulated again.
-    again = align(simulate(filtered_noise(10.0, (-4.0, 4.0), seed=5), unit, None, seed=5))
-    fit_output_error(aligned, space, max_nfev=2)
-    models.clear()
-    fit_output_error(again, space, cut.z, max_nfev=3)
-    assert sum(models) == with_reuse + 3
 
+
+def test_a_full_cache_keeps_the_points_of_the_call_that_empties_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fit's bounded cache forgets older simulations, not those of the call that overflows it: the Jacobian at
+    the solver's point finds that point cached, and the fit's prediction there is not simulated again (issue 12,
+    item 5: a fit whose last Jacobian overflowed the cache simulated its end point twice)."""
+    aligned, space, models = _counted(monkeypatch)
+    objective = calibrate._Objective(aligned, space)
+    older = [np.array([0.001 * i, 0.0]) for i in range(64)]
+    objective.simulate(older)
+    point, step = np.array([0.05, 0.05]), np.array([0.06, 0.05])
+    objective.simulate([point])
+    models.clear()
+    objective.simulate([point, step])  # overflows the cache: the older points go
+    assert sum(models) == 1
+    objective.simulate([point, step])
+    assert sum(models) == 1 and older[0].tobytes() not in objective.cache

@@ -1,5 +1,6 @@
 """The compiled kernel: its inlined integrator is classical RK4 over the right-hand side, effects that
-are switched on but do nothing leave the nominal path bit for bit, and it runs beside other threads."""
+are switched on but do nothing leave the nominal path bit for bit, a sample's sensors do not depend on the
+command (the kernel takes them from the interval's first RK4 stage), and it runs beside other threads."""
 
 from concurrent.futures import ThreadPoolExecutor
 
@@ -8,7 +9,7 @@ import numpy as np
 from hydrowatch.plant import CHANNELS, PlantParameters, PlantSimulator
 from hydrowatch.plant.dynamics import N_COEF, N_LOAD, N_ODE, PL, PS, coefficients, rates
 from hydrowatch.plant.effects import effect_row
-from hydrowatch.plant.kernel import _advance_compiled
+from hydrowatch.plant.kernel import CHANNELS_OUT, _advance_compiled
 
 INERT = {  # every effect here is on, with the setting at which its physics vanishes exactly
     "stribeck_friction": {"Tc": 0.0, "Ts": 0.0},
@@ -62,6 +63,68 @@ def test_kernel_step_is_classical_rk4_over_the_array_right_hand_side():
     assert np.ptp(flow) > 0.5  # a real transient, L/min
     assert np.array_equal(out["flow"], flow)
     assert np.array_equal(sim.state[0, :N_ODE], y)
+
+
+LIVE = {  # every effect on at a magnitude where it acts
+    "stribeck_friction": {"Tc": 0.2, "Ts": 1.0},
+    "quadratic_drag": {"Kd": 0.03},
+    "valve_deadband": {"d": 0.1},
+    "valve_saturation": {"x_max": 0.5},
+    "entrained_air": {"alpha": 0.05},
+    "pump_ripple": {"a1": 0.1, "a2": 0.05},
+    "thermal_drift": {"T_start": 35.0, "T_end": 70.0, "tau": 100.0},
+    "gear_backlash": {"b": 0.02},
+    "shaft_compliance": {"G": 800.0},
+}
+
+
+def test_the_sensors_of_a_state_do_not_depend_on_the_command():
+    """The kernel reads sample k's sensors from the right-hand side evaluated with the interval's command (its
+    first RK4 stage, issue 12 item 5): the same numbers only while the command moves nothing but the spool's
+    acceleration. Every effect, states across the range, commands −4 and 3.7 V: the same sensors bit for bit."""
+    p = PlantParameters()
+    rng = np.random.default_rng(7)
+    coef = np.empty(N_COEF + N_LOAD)
+    coefficients(p.as_array(), coef)
+    ds, sensors = np.empty(N_ODE), np.empty(3)
+    for effects in (None, *({k: v} for k, v in LIVE.items()), LIVE, {"sensor_lowpass": {"sensor": 2.0}}):
+        row = effect_row(effects)
+        for _ in range(20):
+            y = np.array([rng.uniform(-1, 1), rng.normal(0, 50), rng.uniform(0, 2.2e7), rng.uniform(-1e7, 1e7),
+                          rng.normal(0, 100), rng.normal(0, 30), rng.normal(0, 0.03), rng.uniform(30, 70),
+                          rng.normal(0, 5)])
+            read = []
+            for u in (-4.0, 3.7):
+                rates(coef, row, y, u, 1.3, True, ds, sensors)
+                read.append(sensors.copy())
+            assert np.array_equal(read[0], read[1]), effects
+            assert np.all(np.isfinite(read[0]))
+
+
+def test_settling_ends_once_the_state_stops_changing_with_the_same_state_and_outputs():
+    """Settling (clock stopped, constant command, no noise) stops at the first sample that leaves the state unchanged
+    bit for bit and repeats that sample's outputs (issue 12, item 5): the same state and every output as settling one
+    sample per call, for machines that reach that point (nominal, backlash, hysteresis) and one whose play operator
+    and a second command level keep it moving."""
+    machines = [PlantParameters(), PlantParameters(TL=14.0), PlantParameters(Kq=PlantParameters().Kq * 1.2)]
+    effects = [None, {"gear_backlash": {"b": 0.02}}, {"valve_hysteresis": {"r": 0.2}}]
+    n = 600
+    levels = np.array([[2.2] * n, [-1.5] * n, [0.7] * (n // 2) + [1.9] * (n // 2)])
+    whole = PlantSimulator(machines, effects, noise=False)
+    whole_out = np.empty((3, n, CHANNELS_OUT))
+    one = PlantSimulator(machines, effects, noise=False)
+    one_out = np.empty_like(whole_out)
+    no_noise = np.empty((0, 0, 3))
+    state = whole._state
+    _advance_compiled(whole._params, whole._effects, state, levels, no_noise, whole_out, 200.0, 0.0, 10, False)
+    sample = np.empty((3, 1, CHANNELS_OUT))
+    for k in range(n):
+        _advance_compiled(one._params, one._effects, one._state, levels[:, k : k + 1].copy(), no_noise, sample,
+                          200.0, 0.0, 10, False)
+        one_out[:, k] = sample[:, 0]
+    assert np.array_equal(state, one._state)
+    assert np.array_equal(whole_out, one_out)
+    assert np.ptp(whole_out[2, :, 0]) > 1.0  # the last machine really moves (flow, L/min)
 
 
 def test_simulators_in_threads_equal_serial_runs():

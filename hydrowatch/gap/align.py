@@ -12,11 +12,12 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from hydrowatch.errors import DataError, ParameterError
+from hydrowatch.gap.simulations import Simulations
 from hydrowatch.plant.effects import Effects
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.simulator import PlantSimulator
@@ -44,6 +45,9 @@ class AlignedRecording:
         Samples used for fitting and for judging; both exclude the burn-in.
     source : str
         Where the data came from (file path or ``"recording"``).
+    simulations : Simulations
+        The models simulated on this recording so far, shared with its heads (:func:`simulate_sensors`; one
+        analysis's, emptied when it ends).
     """
 
     t: np.ndarray
@@ -53,6 +57,7 @@ class AlignedRecording:
     fit_mask: np.ndarray
     holdout_mask: np.ndarray
     source: str
+    simulations: Simulations = field(default_factory=Simulations, compare=False, repr=False)
 
     @property
     def used_mask(self) -> np.ndarray:
@@ -70,7 +75,7 @@ class AlignedRecording:
         if n >= self.t.size:
             return self
         return AlignedRecording(self.t[:n], self.voltage[:n], self.measured[:, :n], self.scale, self.fit_mask[:n],
-                                self.holdout_mask[:n], self.source)
+                                self.holdout_mask[:n], self.source, self.simulations)
 
 
 def align(
@@ -153,9 +158,35 @@ def simulate_sensors(
     ndarray, shape (M, 3, n) (n = ``stop`` when given)
         Simulated flow [L/min], speed [rad/s], torque [N·m].
 
-    The M models are shared out over :func:`simulation_threads` threads.
+    The M models are shared out over :func:`simulation_threads` threads. A model the recording's
+    :class:`Simulations` holds for at least as many samples is taken from there, not simulated again (the same
+    numbers: issue 12, item 5), and every model simulated here is kept there.
     """
     params, effs = list(parameters), list(effects)
+    kept = aligned.simulations
+    if not params or not kept.serves(aligned.voltage, float(aligned.t[0])):
+        return _simulate_models(aligned, params, effs, stop)
+    n = aligned.voltage[:stop].size
+    keys = [kept.key(p, e) for p, e in zip(params, effs)]
+    out: list[np.ndarray | None] = [kept.take(k, n) for k in keys]
+    todo: dict[tuple[bytes, bytes], int] = {}
+    for i, (k, o) in enumerate(zip(keys, out)):
+        if o is None:
+            todo.setdefault(k, i)
+    if todo:
+        first = list(todo.values())
+        preds = _simulate_models(aligned, [params[i] for i in first], [effs[i] for i in first], stop)
+        kept.simulated += len(first)
+        for k, pred in zip(todo, preds):
+            kept.keep(k, pred)
+        made = dict(zip(todo, preds))
+        out = [made[k] if o is None else o for k, o in zip(keys, out)]
+    return np.stack(out)  # type: ignore[arg-type]
+
+
+def _simulate_models(aligned: AlignedRecording, params: list[PlantParameters], effs: list[Effects | None],
+                     stop: int | None) -> np.ndarray:
+    """Simulate every model (shape (M, 3, n)), shared out over :func:`simulation_threads` threads."""
     workers = min(simulation_threads(), len(params))
     if workers <= 1:
         return _simulate_batch(aligned, params, effs, stop)

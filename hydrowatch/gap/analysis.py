@@ -147,6 +147,7 @@ class GapAnalyser:
                                     self.after_prediction_, self.relations_, self.second_opinions_,
                                     identifiability, self.tests_)
         self.model_ = model_config(diagnosis.final, unidentified)
+        aligned.simulations.clear()  # this analysis's: nothing kept beyond it
         return self
 
     @property

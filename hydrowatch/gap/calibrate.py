@@ -96,7 +96,6 @@ class _Objective:
         self.sos = None if band_hz is None else signal.butter(2, band_hz, fs=SAMPLE_RATE_HZ, output="sos")
         self.cache: dict[bytes, np.ndarray] = {}
         self.n_sim = 0
-        self.last_jacobian: list[bytes] = []
 
     def _residuals(self, prediction: np.ndarray) -> np.ndarray:
         a = self.aligned
@@ -113,7 +112,10 @@ class _Objective:
             preds = simulate_sensors(self.aligned, [m[0] for m in models], [m[1] for m in models])
             self.n_sim += len(todo)
             if len(self.cache) > 64:
+                # Bounded: forget older points, not this call's (the solver's point, found here, is simulated
+                # again otherwise when the fit ends on it).
                 self.cache.clear()
+                self.cache.update(found)
             for z, p in zip(todo, preds):
                 self.cache[z.tobytes()] = found[z.tobytes()] = p
         return [found[z.tobytes()] for z in points]
@@ -133,45 +135,10 @@ class _Objective:
             zi[i] += h
             steps.append(h)
             points.append(zi)
-        self.last_jacobian = [p.tobytes() for p in points]
         preds = self.simulate(points)
         r0 = np.concatenate([self._residuals(preds[0]), self.space.prior_residuals(z)])
         return np.column_stack([(np.concatenate([self._residuals(p), self.space.prior_residuals(zi)]) - r0) / h
                                 for p, h, zi in zip(preds[1:], steps, points[1:])])
-
-
-class _LastJacobian:
-    """The simulations of the last fit's final Jacobian (its end point and each coordinate's step), kept for
-    one continuation of that fit (issue 12, item 5).
-
-    A continuation (hypothesis.polish, hypothesis.settle) restarts the solver at the fit's end point in the
-    same model space, and the solver's first act is the Jacobian there: the same simulations, one per
-    coordinate (20 of the 120 s record for a unit with one effect), that ended the fit before. One slot,
-    matched by the recording's identity, the space's equality and the error band; a simulation depends on
-    nothing else, so a continuation that finds them is the same fit, without those simulations.
-    """
-
-    def __init__(self) -> None:
-        self.key: tuple[AlignedRecording, ModelSpace, float | None] | None = None
-        self.predictions: dict[bytes, np.ndarray] = {}
-
-    def keep(self, objective: _Objective, band_hz: float | None) -> None:
-        """Keep ``objective``'s final Jacobian simulations (replacing the ones kept before)."""
-        points = objective.last_jacobian
-        if not points or any(p not in objective.cache for p in points):
-            self.key, self.predictions = None, {}
-            return
-        self.key = (objective.aligned, objective.space, band_hz)
-        self.predictions = {p: objective.cache[p] for p in points}
-
-    def seed(self, objective: _Objective, band_hz: float | None) -> None:
-        """Give ``objective`` the kept simulations when it continues the kept fit."""
-        key = self.key
-        if key is not None and key[0] is objective.aligned and key[1] == objective.space and key[2] == band_hz:
-            objective.cache.update(self.predictions)
-
-
-_LAST_JACOBIAN = _LastJacobian()
 
 
 def _effective_fraction(residual: np.ndarray, n_sensors: int) -> float:
@@ -211,7 +178,6 @@ def fit_output_error(
     OutputErrorFit
     """
     objective = _Objective(aligned, space, band_hz)
-    _LAST_JACOBIAN.seed(objective, band_hz)
     lo, hi = space.bounds()
     start = np.clip(space.start() if z0 is None else np.asarray(z0, dtype=float), lo + 1e-9, hi - 1e-9)
     trace: list[float] = []
@@ -234,7 +200,6 @@ def fit_output_error(
         r = objective.fun(z)
         jac = np.zeros((r.size, 0))
     prediction = objective.simulate([z])[0]
-    _LAST_JACOBIAN.keep(objective, band_hz)
     params, effects = space.model(z)
     values = space.values(z)
     n_prior = space.prior_residuals(z).size

@@ -46,27 +46,24 @@ model passes the discovery test (discovery.py), or when ``max_effects`` are in t
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
-from hydrowatch.gap.calibrate import OutputErrorFit, _effective_fraction, fit_output_error
+from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
 from hydrowatch.gap.candidates import Candidate, Refit, Scan, holdout_cost, untestable
 from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.hypothesis import polish, recalibrate, settle
-from hydrowatch.gap.locate import noise_std, whiteness
+from hydrowatch.gap.judge import judge
+from hydrowatch.gap.locate import whiteness
 from hydrowatch.gap.screen import Screened, screen
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
 
 log = get_logger(__name__)
-
-BLOCK_SAMPLES = 200
-"""Block length of the held-out bootstrap, samples (1 s)."""
 
 ABSORB_NFEV = 10
 """Solver iterations of :func:`_absorb`'s refit."""
@@ -150,52 +147,6 @@ class Diagnosis:
     unrevealable: dict[str, str] = field(default_factory=dict)
     scanned_out: list[list[str]] = field(default_factory=list)
     dropped: list[str] = field(default_factory=list)
-
-
-def _normalised_sq_error(aligned: AlignedRecording, prediction: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    e = (aligned.measured[:, mask] - prediction[:, mask]) / aligned.scale[:, None]
-    return np.sum(e**2, axis=0)
-
-
-def judge(aligned: AlignedRecording, current: OutputErrorFit, candidate: Refit) -> dict[str, float]:
-    """How much ``candidate`` improves on ``current``.
-
-    Returns
-    -------
-    dict
-        ``gain`` (relative drop of the held-out cost), ``gain_se`` (its block-bootstrap standard
-        error), ``consistency`` (−mean ln(J₁/J₀) over 1 s held-out blocks / its standard error),
-        ``delta_bic`` (fitting blocks, n_eff-corrected), ``explained`` (share of the held-out cost
-        above the noise ceiling that the candidate removes), ``worst_sensor`` (largest
-        relative rise of one sensor's held-out mean square error; a real effect does not make a
-        sensor worse) and ``improved`` (index in SENSORS of the sensor whose held-out error falls most).
-    """
-    mask = aligned.holdout_mask
-    e0 = _normalised_sq_error(aligned, current.prediction, mask)
-    e1 = _normalised_sq_error(aligned, candidate.fit.prediction, mask)
-    d = e0 - e1
-    j0 = holdout_cost(aligned, current.prediction)
-    n_blocks = max(d.size // BLOCK_SAMPLES, 2)
-    blocks = np.array([b.mean() for b in np.array_split(d, n_blocks)])
-    se = float(blocks.std(ddof=1) / math.sqrt(n_blocks)) / j0
-    log_ratio = np.array([math.log(max(b1.sum(), 1e-300) / max(b0.sum(), 1e-300))
-                          for b0, b1 in zip(np.array_split(e0, n_blocks), np.array_split(e1, n_blocks))])
-    consistency = float(-log_ratio.mean() / max(log_ratio.std(ddof=1) / math.sqrt(n_blocks), 1e-12))
-    fm = aligned.fit_mask
-    r = ((aligned.measured[:, fm] - current.prediction[:, fm]) / aligned.scale[:, None]).ravel()
-    n_eff = r.size * _effective_fraction(r, aligned.measured.shape[0])
-    dk = len(candidate.fit.z) - len(current.z)
-    delta_bic = n_eff * math.log(candidate.fit.fit_cost / current.fit_cost) + dk * math.log(n_eff)
-    used = aligned.used_mask
-    noise = sum(
-        min(noise_std(aligned.measured[i, used] - p[i, used]) for p in (current.prediction, candidate.fit.prediction))
-        ** 2 / aligned.scale[i] ** 2 for i in range(aligned.measured.shape[0]))
-    per0 = np.mean(((aligned.measured[:, mask] - current.prediction[:, mask]) / aligned.scale[:, None]) ** 2, axis=1)
-    per1 = np.mean(((aligned.measured[:, mask] - candidate.fit.prediction[:, mask]) / aligned.scale[:, None]) ** 2,
-                   axis=1)
-    return {"gain": float(d.mean()) / j0, "gain_se": se, "consistency": consistency, "delta_bic": float(delta_bic),
-            "explained": float(d.mean() / max(j0 - noise, 1e-12)), "worst_sensor": float(np.max(per1 / per0 - 1.0)),
-            "improved": float(np.argmax(per0 - per1))}
 
 
 def _trial(refit: Refit, j: dict[str, float], passed: bool) -> Trial:

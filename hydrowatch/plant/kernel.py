@@ -16,7 +16,13 @@ state row, so chunked calls equal one long call bit for bit.
 Speed: inside a segment the ODE state is a tuple of floats, and the right-hand side
 (:func:`~hydrowatch.plant.dynamics.derivatives`) and the RK4 step are inlined into the step loop,
 so a step runs in registers without calls or array traffic. The rare kink bisection calls an
-outlined copy of the step, which keeps the compiled code (and the compile time) small.
+outlined copy of the step, which keeps the compiled code (and the compile time) small. The sensors of
+sample k come from the same evaluation of the right-hand side as the first RK4 stage of the interval
+that follows (they do not depend on the command): 40 evaluations per sample at 10 substeps, not 41
+(issue 12, item 5; every output the same bit for bit). Settling (:meth:`PlantSimulator.settle`: the
+clock stopped, a constant command, no noise, no dead time) ends as soon as one sample leaves the state
+unchanged bit for bit, since every later sample would apply the same map to the same state (about half
+of the 3 s settle of a 120 s simulation; the same state and outputs).
 
 Full state row of one machine (``state_width(ring)`` entries): the ODE state (``N_ODE``, see
 :mod:`hydrowatch.plant.dynamics`), then the play operator's output [V], the sample counter k, the
@@ -115,9 +121,9 @@ def _shifted(y: State, a: float, k: State) -> State:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rk4_step(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: float, clock: bool) -> State:
-    """One classical RK4 step of length h [s] from (t, y) with the command u [V] held; pressures projected."""
-    k1 = derivatives(c, e, y, u, t, clock)[0]
+def _rk4_from(c: np.ndarray, e: np.ndarray, y: State, k1: State, u: float, t: float, h: float, clock: bool) -> State:
+    """One classical RK4 step of length h [s] from (t, y) with the command u [V] held, given its first stage
+    k1 = the derivative at (t, y); pressures projected."""
     k2 = derivatives(c, e, _shifted(y, 0.5 * h, k1), u, t + 0.5 * h, clock)[0]
     k3 = derivatives(c, e, _shifted(y, 0.5 * h, k2), u, t + 0.5 * h, clock)[0]
     k4 = derivatives(c, e, _shifted(y, h, k3), u, t + h, clock)[0]
@@ -131,6 +137,12 @@ def _rk4_step(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: flo
     ps = max(y_new[PS], 0.0)
     pl = min(max(y_new[PL], -ps), ps)
     return (y_new[0], y_new[1], ps, pl, y_new[4], y_new[5], y_new[6], y_new[7], y_new[8])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rk4_step(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, h: float, clock: bool) -> State:
+    """One classical RK4 step of length h [s] from (t, y) with the command u [V] held; pressures projected."""
+    return _rk4_from(c, e, y, derivatives(c, e, y, u, t, clock)[0], u, t, h, clock)
 
 
 @njit(cache=True, error_model="numpy")
@@ -158,22 +170,26 @@ def _step_past_kink(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, 
 
 
 @njit(cache=True, error_model="numpy")
-def _rk4_segment(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, length: float, h_max: float,
+def _rk4_segment(c: np.ndarray, e: np.ndarray, y: State, k1: State, u: float, t: float, length: float, h_max: float,
                  clock: bool) -> State:
     """Integrate y over ``length`` seconds from t with the command u held; returns the new state.
 
-    A step that leaves the smooth piece it started in (a kink of the right-hand side: relief valve
-    cracking, spool through zero, stops, backlash contact) is split where it crosses, found by
-    bisection to 2**-12 of a step (at most 4 splits per step), so RK4 keeps its order across kinks.
+    ``k1`` is the derivative at (t, y) with u (the sample's sensors came from the same evaluation): the first
+    step's first stage, not evaluated again. A step that leaves the smooth piece it started in (a kink of the
+    right-hand side: relief valve cracking, spool through zero, stops, backlash contact) is split where it
+    crosses, found by bisection to 2**-12 of a step (at most 4 splits per step), so RK4 keeps its order across kinks.
     """
     n_steps = max(1, int(math.ceil(length / h_max - 1e-9)))
     h = length / n_steps
     code = _region(c, e, y)
+    first = k1
     for j in range(n_steps):
         tj = t + j * h
         left = h
         for split in range(_SPLITS):
-            y_new = _rk4_step(c, e, y, u, tj, left, clock)
+            if j > 0 or split > 0:
+                first = derivatives(c, e, y, u, tj, clock)[0]
+            y_new = _rk4_from(c, e, y, first, u, tj, left, clock)
             new_code = _region(c, e, y_new)
             if split == _SPLITS - 1 or new_code == code:
                 break
@@ -184,12 +200,6 @@ def _rk4_segment(c: np.ndarray, e: np.ndarray, y: State, u: float, t: float, len
         code = new_code
         y = y_new
     return y
-
-
-@njit(cache=True, error_model="numpy")
-def _sensors(c: np.ndarray, e: np.ndarray, y: State, t: float, clock: bool) -> tuple[float, float, float]:
-    """Raw flow [L/min], speed [rad/s] and torque [N·m] of state y (Eq. 8)."""
-    return derivatives(c, e, y, 0.0, t, clock)[1]
 
 
 def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command: np.ndarray,
@@ -229,6 +239,15 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
     _advance_compiled(params, effects, state, command, noise, out, float(fs), float(t0), int(substeps), bool(clock))
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _same_bits(a: State, b: State) -> bool:
+    """Whether two states are the same floats bit for bit (equal, and the same sign of zero; NaN never)."""
+    for i in range(N_ODE):
+        if a[i] != b[i] or math.copysign(1.0, a[i]) != math.copysign(1.0, b[i]):
+            return False
+    return True
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
 def _advance_compiled(params, effects, state, command, noise, out, fs, t0, substeps, clock):  # noqa: ANN001
     """:func:`advance`, compiled (same arguments)."""
@@ -255,37 +274,55 @@ def _advance_compiled(params, effects, state, command, noise, out, fs, t0, subst
             if frac < 1e-9:
                 frac = 0.0
         lowpass = int(e[_LOWPASS + 1]) if e[_LOWPASS] > 0.5 else -1
+        # Settling (clock stopped, no noise, no delay line, one command throughout): every sample applies the same
+        # map to the state, so once a sample leaves it unchanged bit for bit, so does every later one.
+        steady = not clock and not noisy and not delay
+        if steady:
+            for k in range(1, n_samples):
+                if command[m, k] != command[m, 0]:
+                    steady = False
+                    break
         for k in range(n_samples):
             t = t0 + s[COUNT] / fs
-            # 1. sensors at t_k
-            sens = _sensors(coef, e, y, t, clock)
+            y_before = y
+            hyst_before = s[HYST]
+            # 2. command through the play operator and the delay line (what the spool gets from t_k on)
+            u = command[m, k]
+            if hysteresis:
+                r = e[_HYSTERESIS + 1]
+                u = min(max(s[HYST], u - r), u + r)
+                s[HYST] = u
+            u_first = u
+            u_now = u
+            if delay:
+                w = int(s[WRITE])
+                s[RING + w] = u
+                s[WRITE] = (w + 1) % ring
+                u_now = s[RING + (w - lag) % ring]
+                u_first = s[RING + (w - lag - 1) % ring] if frac > 0.0 else u_now
+            # 1. sensors at t_k: the state's derivative there (the first RK4 stage of the interval) gives them
+            # too; they do not depend on the command (it moves only the spool's acceleration).
+            k1, sens = derivatives(coef, e, y, u_first, t, clock)
             for c in range(N_SENSORS):
                 value = y[YF] if c == lowpass else sens[c]
                 out[m, k, c] = value + (p[_NOISE + c] * noise[m, k, c] if noisy else 0.0)
             out[m, k, _SUPPLY] = max(y[PS], 0.0) / PA_PER_BAR
             out[m, k, _LOAD] = y[PL] / PA_PER_BAR
             out[m, k, _TEMPERATURE] = y[TEMP] if e[_THERMAL] > 0.5 else _T_NOMINAL
-            # 2. command through the play operator and the delay line
-            u = command[m, k]
-            if hysteresis:
-                r = e[_HYSTERESIS + 1]
-                u = min(max(s[HYST], u - r), u + r)
-                s[HYST] = u
             # 3. integrate over the sample interval
-            if delay:
-                w = int(s[WRITE])
-                s[RING + w] = u
-                s[WRITE] = (w + 1) % ring
-                u_now = s[RING + (w - lag) % ring]
-                if frac > 0.0:
-                    u_before = s[RING + (w - lag - 1) % ring]
-                    y = _rk4_segment(coef, e, y, u_before, t, frac * dt, h_max, clock)
-                    y = _rk4_segment(coef, e, y, u_now, t + frac * dt, (1.0 - frac) * dt, h_max, clock)
-                else:
-                    y = _rk4_segment(coef, e, y, u_now, t, dt, h_max, clock)
+            if delay and frac > 0.0:
+                y = _rk4_segment(coef, e, y, k1, u_first, t, frac * dt, h_max, clock)
+                t_switch = t + frac * dt
+                k1 = derivatives(coef, e, y, u_now, t_switch, clock)[0]
+                y = _rk4_segment(coef, e, y, k1, u_now, t_switch, (1.0 - frac) * dt, h_max, clock)
             else:
-                y = _rk4_segment(coef, e, y, u, t, dt, h_max, clock)
+                y = _rk4_segment(coef, e, y, k1, u_now, t, dt, h_max, clock)
             if clock:
                 s[COUNT] += 1.0
+            elif steady and s[HYST] == hyst_before and _same_bits(y, y_before):
+                for later in range(k + 1, n_samples):
+                    for c in range(CHANNELS_OUT):
+                        out[m, later, c] = out[m, k, c]
+                break
         for i in range(N_ODE):
             s[i] = y[i]
