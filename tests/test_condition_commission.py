@@ -6,6 +6,7 @@ Small random units (hydrowatch.plant.population): every parameter ±20 %, leakag
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -146,8 +147,10 @@ def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half
     assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
 
 
-def test_a_relief_on_its_search_bound_is_not_determined_and_the_supply_is_kept(units, models, monkeypatch) -> None:
-    """Halves that agree do not make a relief at its search bound an estimate: the trained unit's supply is kept."""
+def test_a_relief_on_its_search_bound_is_not_determined_and_held_at_the_trained_units(units, models,
+                                                                                      monkeypatch) -> None:
+    """Halves that agree do not make a relief at its search bound an estimate: it is held at the trained unit's value
+    and the rest fitted again."""
     unit, _ = units[1]
     healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
     f = models[0].features_
@@ -158,7 +161,8 @@ def test_a_relief_on_its_search_bound_is_not_determined_and_the_supply_is_kept(u
     monkeypatch.setattr(C, "BOUNDS", {**C.BOUNDS, "Kr": kr})  # as if the fit had ended on Kr's bound
     assert C.on_search_limit(choice.whole) == ["Kr"]
     again = C.identify_for_commissioning(f, healthy)
-    assert again.supply == C.KEPT and again.fit.parameters.Kr == f.nominal_.Kr
+    assert again.supply == "identified" and again.fit.parameters.Kr == f.nominal_.Kr and "Kr" not in again.fit.factors
+    assert "Pc" in again.fit.factors and again.fit.factors["Pc"] != 1.0
 
 
 def test_a_whole_fit_that_fails_the_self_check_gives_way_to_the_kept_supply(models, duty_healthy, duty_fit,
@@ -197,6 +201,22 @@ def test_the_pump_draw_bounds_the_capacity_and_caps_a_pump_left_to_its_prior(uni
     informed[i, i] = (0.1 * C.DEFAULT_PRIOR) ** 2
     kept = dataclasses.replace(left, covariance={**fit.covariance, "valve": (names, informed)})
     assert C.pump_capacity(f, kept, healthy) is kept
+
+
+def test_a_kept_supply_gets_at_most_the_pump_capacity_the_recording_drew(units, models, duty_healthy) -> None:
+    """The trained unit's pump 1.6 x this unit's capacity: the kept supply's capacity is (1 + CAPACITY_MARGIN) x the
+    recording's draw, and the pump leakage fitted with it is no further from the unit's than without the bound."""
+    unit, _ = units[1]
+    f = copy.copy(models[0].features_)
+    f.nominal_ = f.nominal_.replace(Dp=1.6 * unit.Dp * unit.omega_p / f.nominal_.omega_p)
+    fit = C.kept_supply(f, duty_healthy)
+    capacity = fit.parameters.Dp * fit.parameters.omega_p
+    drawn = drawn_flow(duty_healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    assert capacity == pytest.approx((1 + C.CAPACITY_MARGIN) * drawn, rel=1e-9)
+    assert capacity < 1.1 * unit.Dp * unit.omega_p and fit.factors["Dp"] < 0.7
+    assert fit.parameters.Pc == f.nominal_.Pc and fit.parameters.Kr == f.nominal_.Kr  # the supply is kept
+    uncapped = identify_unit(duty_healthy, f.nominal_, f.sensors, f.viscosity_coefficient, C.RESTRICTED_PARAMETERS)
+    assert abs(np.log(fit.parameters.Cp / unit.Cp)) <= abs(np.log(uncapped.parameters.Cp / unit.Cp)) + 1e-9
 
 
 @pytest.mark.parametrize("case, says", [
