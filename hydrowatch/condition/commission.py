@@ -39,13 +39,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from hydrowatch.condition import layout as L
-from hydrowatch.condition import parity
 from hydrowatch.condition.features import ConditionFeatures
+from hydrowatch.condition.informed import left_to_prior as left_to_prior  # the public name stays here
+from hydrowatch.condition.informed import level_uncertainty, levels
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.refusal import CommissioningError as CommissioningError  # the public name stays here
 from hydrowatch.condition.refusal import check_excitation, fault_present
@@ -61,8 +62,6 @@ from hydrowatch.condition.unit import (
     valve_error,
 )
 from hydrowatch.log import event, get_logger
-from hydrowatch.plant.faults import level_severity, parse_state
-from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
 _log = get_logger(__name__)
@@ -111,11 +110,6 @@ units (median unit 85.7 % right, 100 % once counted over the informed parameters
 BAND_WIDENING = 0.3
 """Extra width of each fault band on a commissioned unit (:meth:`ConditionFeatures.for_unit`): the levels there are
 extrapolated from healthy data; measured on duty cycles with 1–3× the default sensor noise, +17 to +29 % too high."""
-INFORMED = 0.5
-"""A parameter counts as informed by the recording when its posterior standard deviation is below this share of its
-prior spread (:func:`level_uncertainty`)."""
-LEAKS = ("pump_leak", "motor_leak", "valve_leak")
-"""Faults whose severity is a conductance in units of the reference conductance."""
 SUPPLY_FREE_FAULTS = ("load", "motor_leak")
 """Faults whose parameters (TL; Ctm) the load and motor relations identify in full whichever supply commissioning
 chooses: a recording showing one is refused from the whole recording's fit, before the halves are fitted."""
@@ -170,53 +164,6 @@ class Commissioning:
                 "left_to_prior": left_to_prior(self.unit)}
 
 
-def _levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
-    """The trained fault levels on a unit of parameters ``p`` (steady speed drop at 2 V), in physical terms.
-
-    A leakage fault's severity counts in units of the unit's own reference conductance Dp·ωp/Pc
-    (:func:`parity.reference_conductance`), a scale, not physics: the leaks are compared as conductances,
-    m³/(s·Pa), the others as their severities (load: TL factor; valve_coil, relief_spring: Kc, Pc fractions).
-    """
-    named = [parse_state(s) for s in features.levels_]
-    scale = parity.reference_conductance(p)
-    return np.array([level_severity(f, lvl, p) * (scale if f in LEAKS else 1.0)
-                     for f, lvl in named if f is not None and lvl is not None] or [1.0])
-
-
-def _informed(names: tuple[str, ...], covariance: np.ndarray) -> np.ndarray:
-    """Which of a relation's parameters the recording informs: posterior standard deviation < :data:`INFORMED` × τ."""
-    tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
-    return cast(np.ndarray, np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau)
-
-
-def left_to_prior(fit: UnitFit) -> list[str]:
-    """Identified parameters the recording did not inform (they stay near the trained unit's values)."""
-    return [n for names, covariance in fit.covariance.values()
-            for n, ok in zip(names, _informed(names, covariance)) if not ok]
-
-
-def level_uncertainty(features: ConditionFeatures, fit: UnitFit, step: float = 0.01) -> float:
-    """Largest standard deviation of ln(fault level) (:func:`_levels`) that the fit's posterior covariance implies
-    (linearised), counting only the parameters the recording informs.
-
-    A parameter the recording leaves to its prior (posterior standard deviation ≥ :data:`INFORMED` × its prior
-    spread τ, e.g. the pump displacement on a duty cycle that never saturates the pump) stays at the trained unit's
-    value whether the supply is identified or kept (:func:`identify_for_commissioning`): its uncertainty is the
-    build spread between units that both choices share, and does not tell them apart.
-    """
-    base = np.log(_levels(features, fit.parameters))
-    variance = np.zeros_like(base)
-    for names, covariance in fit.covariance.values():
-        informed = _informed(names, covariance)
-        if not informed.any():
-            continue
-        kept = [n for n, ok in zip(names, informed) if ok]
-        slopes = np.column_stack([(np.log(_levels(features, fit.parameters.replace(
-            **{n: getattr(fit.parameters, n) * np.exp(step)}))) - base) / step for n in kept])
-        variance += np.einsum("ij,jk,ik->i", slopes, covariance[np.ix_(informed, informed)], slopes)
-    return float(np.sqrt(variance.max()))
-
-
 class SupplyChoice(NamedTuple):
     """What :func:`identify_for_commissioning` decided, and the measures it decided on."""
 
@@ -258,7 +205,7 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     if present:  # the load and motor relations are identified in full whichever supply is chosen
         raise CommissioningError(present)
     first, second = (identify_unit(part, *args, start=whole.parameters) for part in parts)
-    split = float(np.max(np.abs(np.log(_levels(features, first.parameters) / _levels(features, second.parameters)))))
+    split = float(np.max(np.abs(np.log(levels(features, first.parameters) / levels(features, second.parameters)))))
     def crossed(a: UnitFit, b: UnitFit) -> float:  # a predicts the second half, b the first
         return valve_error(parts[1], a.parameters, *args[1:]) + valve_error(parts[0], b.parameters, *args[1:])
 
