@@ -147,6 +147,21 @@ def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half
     assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
 
 
+def test_a_refusal_after_halves_that_disagree_says_what_to_record(models, duty_healthy, duty_fit, monkeypatch) -> None:
+    """The whole fit the held-out error chose and the kept supply both read the unit's own healthy windows as a fault:
+    refused, and since the halves disagreed the message names the recording that would determine the supply."""
+    truth = duty_fit
+    wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.6 * truth.parameters.Pc))
+    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, "identified", 0.5, 3.0))
+    monkeypatch.setattr(C, "kept_supply", lambda *a: wrong)
+    with pytest.raises(CommissioningError, match="record 5 minutes of filtered noise"):
+        commission(models[0], duty_healthy)
+    monkeypatch.setattr(C, "identify_for_commissioning", lambda *a: C.SupplyChoice(wrong, "identified", 0.05, None))
+    with pytest.raises(CommissioningError) as refused:  # halves that agree: a fault may be present, nothing to record
+        commission(models[0], duty_healthy)
+    assert "filtered noise" not in str(refused.value)
+
+
 def test_a_relief_on_its_search_bound_is_not_determined_and_held_at_the_trained_units(units, models,
                                                                                       monkeypatch) -> None:
     """Halves that agree do not make a relief at its search bound an estimate: it is held at the trained unit's value

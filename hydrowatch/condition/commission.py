@@ -337,8 +337,9 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     if healthy < MIN_HEALTHY:
         states, counts = np.unique(verdicts[verdicts != "healthy"], return_counts=True)
         top = ", ".join(f"{s} {c / verdicts.size:.0%}" for s, c in sorted(zip(states, counts), key=lambda x: -x[1])[:3])
+        undetermined = supply == KEPT or choice.split > SPLIT_AGREEMENT  # kept, or the halves disagreed
         hint = (" The recording did not determine the unit's supply (pump, relief): record 5 minutes of filtered "
-                "noise over the command range." if supply == KEPT else "")
+                "noise over the command range." if undetermined else "")
         raise CommissioningError(f"the commissioned model must read its own healthy recording healthy in at least "
                                  f"{MIN_HEALTHY:.0%} of windows. Got {healthy:.0%} ({top}): a fault may already be "
                                  f"present, or the recording is not of this kind of unit.{hint}")
