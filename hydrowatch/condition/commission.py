@@ -62,6 +62,7 @@ from hydrowatch.condition.unit import (
     valve_error,
 )
 from hydrowatch.log import event, get_logger
+from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
 _log = get_logger(__name__)
@@ -239,8 +240,7 @@ def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
     from 0.985 of its search bound) took Cp 10 × and read 15 % of its healthy windows as a pump leak.
     """
     p = features.nominal_
-    bound = (1.0 + CAPACITY_MARGIN) * drawn_flow(windows, p, features.sensors, features.viscosity_coefficient)
-    start = p if bound >= p.Dp * p.omega_p else p.replace(Dp=bound / p.omega_p)
+    start = _drawn_capacity(features, windows, p)
     fit = identify_unit(windows, start, features.sensors, features.viscosity_coefficient, RESTRICTED_PARAMETERS)
     return fit if start is p else dataclasses.replace(fit, factors={**fit.factors, "Dp": start.Dp / p.Dp})
 
@@ -279,14 +279,18 @@ def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray
     if "Dp" not in left_to_prior(fit):
         return fit
     p = fit.parameters
-    bound = (1.0 + CAPACITY_MARGIN) * drawn_flow(windows, p, features.sensors, features.viscosity_coefficient)
-    if bound >= p.Dp * p.omega_p:
+    capped = _drawn_capacity(features, windows, p)
+    if capped is p:
         return fit
-    dp = bound / p.omega_p
-    event(_log, "pump capacity bounded by the recording", logging.INFO,
-          factor=round(dp / p.Dp, 3))
-    return dataclasses.replace(fit, parameters=p.replace(Dp=dp),
-                               factors={**fit.factors, "Dp": dp / features.nominal_.Dp})
+    event(_log, "pump capacity bounded by the recording", logging.INFO, factor=round(capped.Dp / p.Dp, 3))
+    return dataclasses.replace(fit, parameters=capped, factors={**fit.factors, "Dp": capped.Dp / features.nominal_.Dp})
+
+
+def _drawn_capacity(features: ConditionFeatures, windows: np.ndarray, p: PlantParameters) -> PlantParameters:
+    """``p`` with the pump's capacity Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × the flow the recording drew from
+    it (:func:`~hydrowatch.condition.unit.drawn_flow`); ``p`` itself when it is within."""
+    bound = (1.0 + CAPACITY_MARGIN) * drawn_flow(windows, p, features.sensors, features.viscosity_coefficient)
+    return p if bound >= p.Dp * p.omega_p else p.replace(Dp=bound / p.omega_p)
 
 
 def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:

@@ -30,12 +30,19 @@ def held_mask(voltage: np.ndarray) -> np.ndarray:
     return held
 
 
+def _difference_sigma(d: np.ndarray, order: int, axis: int | None = None) -> np.ndarray:
+    """White-noise σ from ``order``-th differences ``d``: 1.4826·MAD / √C(2·order, order) (a white sequence's
+    ``order``-th differences have variance C(2·order, order)·σ²), over ``axis`` (None: all of ``d``)."""
+    mad = np.median(np.abs(d - np.median(d, axis=axis, keepdims=axis is not None)), axis=axis)
+    return cast(np.ndarray, 1.4826 * mad / np.sqrt(comb(2 * order, order)))
+
+
 def noise_where(x: np.ndarray, held: np.ndarray) -> float | None:
     """1.4826·MAD / √6 of the second differences of ``x`` where ``held`` (:func:`held_mask`); None if too few."""
     d = np.diff(x, n=2, axis=-1)[held]
     if d.size < MIN_HELD:
         return None
-    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(6.0)
+    return float(_difference_sigma(d, 2))
 
 
 def held_noise(x: np.ndarray, voltage: np.ndarray) -> float | None:
@@ -54,13 +61,6 @@ NOISE_AGREEMENT = 1.2
 factor (:func:`window_noise`)."""
 
 
-def _difference_noise(x: np.ndarray, order: int) -> np.ndarray:
-    """1.4826·MAD of each row's ``order``-th differences over √C(2·order, order) (their variance for white noise)."""
-    d = np.diff(x, n=order, axis=-1)
-    mad = np.median(np.abs(d - np.median(d, axis=-1, keepdims=True)), axis=-1)
-    return cast(np.ndarray, 1.4826 * mad / np.sqrt(comb(2 * order, order)))
-
-
 def window_noise(x: np.ndarray) -> np.ndarray:
     """White-noise standard deviation of each window of ``x`` (m, n), from its own samples; 0 where it cannot tell.
 
@@ -71,5 +71,5 @@ def window_noise(x: np.ndarray) -> np.ndarray:
     0.5–3.5 V agree in every window and read 0.90–1.11 × the true noise; filtered noise 0–4 V (8–11 ×) and slow noise
     (3–4 ×) agree in none.
     """
-    low, high = _difference_noise(x, 2), _difference_noise(x, 6)
+    low, high = (_difference_sigma(np.diff(x, n=k, axis=-1), k, axis=-1) for k in (2, 6))
     return cast(np.ndarray, np.where(low <= NOISE_AGREEMENT * high, low, 0.0))
