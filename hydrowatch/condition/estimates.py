@@ -223,7 +223,7 @@ def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severit
 
 def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
                  box: Mapping[str, tuple[float, float]],
-                 cache: dict[tuple[str, float, float], np.ndarray] | None = None) -> dict[str, np.ndarray]:
+                 cache: dict[tuple[object, ...], np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Mean squared residual of each relation with every severity held inside ``box``.
 
     Parameters
@@ -248,7 +248,7 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
         out[relation] = est.mse[relation] + est.curvature[fault] * (np.clip(s, *box[fault]) - s) ** 2
     best = np.full(sig.flow.shape[0], np.inf)
     for fault in parity.VALVE_HYPOTHESES:
-        key = (fault, *box[fault])
+        key = _box_key(fault, box[fault])
         if key not in cache:
             s = est.severity[fault]
             held = np.clip(s, *box[fault])
@@ -266,6 +266,11 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
         best = np.minimum(best, cache[key])
     out["valve"] = best
     return out
+
+
+def _box_key(fault: str, bounds: tuple[float, float] | tuple[np.ndarray, np.ndarray]) -> tuple[object, ...]:
+    """Cache key of a fault's (low, high): the floats, or the bytes of per-window bounds."""
+    return (fault, *(b.tobytes() if isinstance(b, np.ndarray) else float(b) for b in bounds))
 
 
 def state_box(state: str, level: float, p: PlantParameters, tolerance: float, level_width: float, narrow: bool,
@@ -328,7 +333,7 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
     held = [[{} for _ in range(n_states)] for _ in box_sets]  # type: list[list[dict[str, np.ndarray]]]
     free = {r: np.full(m, np.inf) for r in RELATIONS}
     for g in groups:
-        cache: dict[tuple[str, float, float], np.ndarray] = {}
+        cache: dict[tuple[object, ...], np.ndarray] = {}
         for boxes, out in zip(box_sets, held):
             for k in g.states:
                 box = boxes[k]

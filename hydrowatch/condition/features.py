@@ -42,7 +42,7 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
 from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
-from hydrowatch.condition.oil import OIL_RANGE, leakage_range, oil_box, oil_parts
+from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_factors, oil_box, oil_parts
 from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
@@ -321,7 +321,7 @@ class ConditionFeatures(EvidenceRows):
             if not groups:
                 continue
             rows = np.full((ok.size, out.shape[1]), np.nan)
-            rows[ok] = self._ratios(groups, self._box_sets(known)[:1])[0][0]
+            rows[ok] = self._ratios(groups, known, sets=1)[0][0]
             out[mask] = rows
         return out
 
@@ -333,20 +333,39 @@ class ConditionFeatures(EvidenceRows):
         """
         return self.transform_evidence(windows)[:, : 2 * len(self.feature_names_)]
 
-    def _ratios(self, groups: Sequence[E.FillGroup], boxes: Sequence[Mapping[str, Mapping[str, tuple[float, float]]]]
+    def _ratios(self, groups: Sequence[E.FillGroup], known: bool, sets: int = 2
                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
-        """:func:`hydrowatch.condition.estimates.state_ratios` for each set of boxes (band, level)."""
+        """:func:`hydrowatch.condition.estimates.state_ratios` for the first ``sets`` of the box sets (band, level),
+        of windows with the oil temperature (``known``) or without it (:meth:`_box_of`)."""
+        boxes = (self.boxes_, self.level_boxes_)[:sets]
         return E.state_ratios(groups, self.nominal_, self.relations_,
-                              [[self._box_of(state, b[state]) for state in self.states_] for b in boxes])
+                              [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes])
 
-    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]]) -> E.BoxOf:
-        """``box``, or for a state that follows the relief, what scales its load range by each window's relief."""
-        if not self._follows_relief(state):
+    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> E.BoxOf:
+        """``box`` as the windows judge it: without the oil temperature its leak ranges widened by the oil's range
+        (:mod:`hydrowatch.condition.oil`), per window by what the motor's leakage tells of the oil unless the state
+        is a motor leak (:func:`~hydrowatch.condition.oil.motor_factors`); for a state that follows the relief, its
+        load range scaled by each window's relief."""
+        factors = None if known or self.oil_range == 0.0 else leakage_range(self.viscosity_coefficient,
+                                                                            self.oil_range)
+        per_window = factors is not None and parse_state(state)[0] != "motor_leak"
+        if factors is not None and not per_window:
+            box = oil_box(box, self.nominal_, factors)
+        relief = self._follows_relief(state)
+        if not (per_window or relief):
             return box
-        scale = self._load_scale()
-        return lambda est: scaled_load_box(box, *window_factors(scale, est.severity["relief_spring"],
-                                                                est.curvature["relief_spring"],
-                                                                RELIEF_LIMITS)[:2])
+        scale = self._load_scale() if relief else None
+
+        def of(est: E.ParityEstimates) -> E.Box:
+            out: E.Box = box
+            if factors is not None and per_window:
+                out = oil_box(box, self.nominal_, motor_factors(est.severity["motor_leak"], est.curvature["motor_leak"],
+                                                                est.mse["motor"], self.window, self.nominal_, factors))
+            if scale is None:
+                return out
+            return scaled_load_box(out, *window_factors(scale, est.severity["relief_spring"],
+                                                        est.curvature["relief_spring"], RELIEF_LIMITS)[:2])
+        return of
 
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:
         """Why each raw window (n_windows, window, 4) cannot be judged, or None.

@@ -21,11 +21,22 @@ read `unknown`; what is left is the pump leak's warning against its alert: ±22 
 total leakage makes a warning on warm oil and an alert on cold oil the same leakage (the two ranges
 meet), which no relation can tell without the temperature. The cost is on unseen faults read
 without temperature: 62.5 → 44.9 % `unknown` per window, 98.3 → 95.8 % pooled.
+
+**One oil wets every path** (:func:`motor_factors`). That warning against alert is not a limit of the sensors: the
+motor's own leakage Ctm scales with the same viscosity, and the motor relation reads it in every window whose motor
+is healthy, so f̂ = 1 + ŝ_motor / c₀ (c₀ = Ctm / Cref). Each state whose own fault is not a motor leak now widens its
+leak ranges per window by f̂ within ``FACTOR_SPREAD`` (and the estimate's noise) instead of the whole ±5 K; the
+motor_leak states keep the whole range (their motor path is the fault). Measured on tuning seed 2045 (units 1, 3, 5,
+7: identified Ctm 0.87–0.98 × the truth, day drift ±3–5 %): f̂ / f median 0.91–1.06 per unit, 5–95 % of windows
+0.80–1.15. The 7-state oil condition without the channel (duty cycle, oil 5 K warm or cold), per window / pooled over
+12, six units of 2045: median 87.5 / 87.3 → 100 / 100, worst 85.7 / 85.7 → 99.6 / 100; eight units of 2044: 100 /
+100 for all; 13 states (2045 units 1, 3, 5): median 76.7 / 92.3 → 87.3 / 100, worst 74.8 / 91.5 → 84.6 / 98.7.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +46,14 @@ OIL_RANGE = 5.0
 """Default half-range of the oil temperature around 40 °C, K, that a window without the temperature channel may
 have: a circuit with a cooler held at its set point. A wider range widens every leak box further (more of the
 pump leak's warning and alert overlap)."""
+
+FACTOR_SPREAD = 0.10
+"""Relative error of the oil's leakage factor read from one window's motor leakage (:func:`motor_factors`) besides
+its noise: the unit's identified Ctm and its drift since (measured below)."""
+FACTOR_NOISE = 6.0
+"""Multiple of the motor estimate's least-squares standard error in :func:`motor_factors`: its residuals are
+correlated (the load pressure's derivative), so the true scatter is about 3 × the white-noise formula's; 6 is
+about two of those."""
 
 LEAK_BASELINE: dict[str, Callable[[PlantParameters], float]] = {
     "pump_leak": lambda p: p.Cp + p.Cpl + p.Cvl,
@@ -50,7 +69,7 @@ def leakage_range(viscosity_coefficient: float, oil_range: float) -> tuple[float
 
 
 def oil_box(box: Mapping[str, tuple[float, float]], p: PlantParameters,
-            factors: tuple[float, float]) -> dict[str, tuple[float, float]]:
+            factors: tuple[Any, Any]) -> dict[str, tuple[Any, Any]]:
     """A severity box widened on every leak fault by the leakage factors ``factors`` (module docstring).
 
     Parameters
@@ -59,18 +78,54 @@ def oil_box(box: Mapping[str, tuple[float, float]], p: PlantParameters,
         Severities on each fault's scale (:func:`hydrowatch.plant.faults.fault_parameters`).
     p : PlantParameters
         The unit's nominal parameters (its healthy leakages and Cref = Dp·ωp/Pc).
-    factors : (float, float)
-        (f_lo, f_hi), :func:`leakage_range`.
+    factors : (float, float) or (ndarray, ndarray)
+        (f_lo, f_hi), :func:`leakage_range`; or per window, shape (m,) each (:func:`motor_factors`).
     """
     c_ref = p.Dp * p.omega_p / p.Pc
-    out = dict(box)
+    out: dict[str, tuple[Any, Any]] = dict(box)
     for fault, baseline in LEAK_BASELINE.items():
         if fault in out:
             c0 = baseline(p) / c_ref
             lo, hi = out[fault]
             ends = [f * (s + c0) for s in (lo, hi) for f in factors]
-            out[fault] = (min(ends) - c0, max(ends) - c0)
+            out[fault] = (np.minimum.reduce(ends) - c0, np.maximum.reduce(ends) - c0)
     return out
+
+
+def motor_factors(motor_leak: np.ndarray, curvature: np.ndarray, mse: np.ndarray, samples: int,
+                  p: PlantParameters, factors: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Per window, the leakage factors (low, high) the motor's own leakage allows, inside ``factors``.
+
+    One oil wets every leakage path, so a window whose motor is healthy tells the oil's factor f
+    from the motor relation: its severity read at f = 1 is ŝ = (f − 1)·c₀, c₀ = Ctm / Cref, so
+    f̂ = 1 + ŝ / c₀. The range is f̂ within ``FACTOR_SPREAD`` in ratio, widened by
+    ``FACTOR_NOISE`` × the estimate's standard error (√(MSE / (curvature · samples)) / c₀), clipped to
+    ``factors``; a window whose motor relation has no curvature (no flow or speed sensor) or a unit
+    without motor leakage keeps all of ``factors``.
+
+    Parameters
+    ----------
+    motor_leak, curvature, mse : ndarray, shape (m,)
+        The windows' free motor_leak severity, its curvature d(MSE)/d(s²) and the motor relation's
+        free MSE, (L/min)² (:class:`~hydrowatch.condition.estimates.ParityEstimates`).
+    samples : int
+        Samples per window.
+    p : PlantParameters
+        The unit's nominal parameters.
+    factors : (float, float)
+        (f_lo, f_hi) of :func:`leakage_range`.
+    """
+    lo, hi = factors
+    c0 = p.Ctm / (p.Dp * p.omega_p / p.Pc)
+    m = np.asarray(motor_leak).shape[0]
+    if c0 <= 0.0:
+        return np.full(m, lo), np.full(m, hi)
+    ok = np.isfinite(motor_leak) & (curvature > 0.0)
+    curv = np.where(ok, curvature, 1.0)
+    f = np.clip(1.0 + np.where(ok, motor_leak, 0.0) / c0, lo, hi)
+    error = np.sqrt(np.maximum(np.where(ok, mse, 0.0), 0.0) / (curv * samples)) / c0
+    spread = 1.0 + np.hypot(FACTOR_SPREAD, FACTOR_NOISE * error)
+    return (np.where(ok, np.maximum(lo, f / spread), lo), np.where(ok, np.minimum(hi, f * spread), hi))
 
 
 def temperature_known(windows: np.ndarray, width: int) -> np.ndarray:
