@@ -98,6 +98,7 @@ def test_the_motor_leakage_tells_the_oil_that_separates_a_pump_leak_warning_from
     """Without the channel, a warning on oil 5 K warm and an alert on oil 5 K cold leak alike (×1.22 and ×0.82) on
     the supply; the healthy motor's own leakage, wetted by the same oil, tells the two apart (oil.motor_factors)."""
     import hydrowatch.condition.oil as oil
+    from hydrowatch.condition.estimates import severity_standard_error
 
     model = model_and_warm[0]
     warm = _windows(filtered_noise(30, (0, 4), seed=7), seed=8, oil_c=45.0)["pump_leak_warning"][:, :, :4]
@@ -105,8 +106,9 @@ def test_the_motor_leakage_tells_the_oil_that_separates_a_pump_leak_warning_from
     assert np.mean(model.predict(warm) == "pump_leak_warning") >= 0.9
     assert np.mean(model.predict(cold) == "pump_leak_alert") >= 0.9
     est = model.features_._estimates(warm)[1][0].estimates
-    low, high = oil.motor_factors(est.severity["motor_leak"], est.curvature["motor_leak"], est.mse["motor"], 1000,
-                                  model.features_.nominal_, oil.leakage_range(0.04, 5.0))
+    se = severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], 999 // 8)
+    low, high = oil.motor_factors(est.severity["motor_leak"], se, model.features_.nominal_,
+                                  oil.leakage_range(0.04, 5.0))
     assert np.median(low) < np.exp(0.2) <= np.median(high) and np.all(low > 1.0)  # the warm oil, not the cold
     spread = oil.FACTOR_SPREAD
     oil.FACTOR_SPREAD = 10.0  # every window allowed the whole ±5 K: the two meet

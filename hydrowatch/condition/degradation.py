@@ -12,13 +12,13 @@ component's estimated condition would cause on its own, on this unit, divided by
 averages stay unbiased). The map ŝ → I is a monotone table per (fault, unit)
 (:func:`hydrowatch.plant.faults.speed_drop_table`), linearly extrapolated beyond it.
 
-**Interval.** Each relation's fit gives MSE(s) = MSE_min + c·(s − ŝ)² (``ParityEstimates.curvature``), so for
-N residual blocks the least-squares standard error is se(ŝ) = √(MSE_min / ((N − 1)·c)) (the Gauss-Newton
-covariance; exact for the linear relations). The block residuals are not independent (the misfit of a unit whose
-parameters drifted since commissioning is slow), so se is multiplied by :data:`SE_INFLATION`. The 95 % interval
-ŝ ± 1.96·se is mapped through the same monotone table (which keeps its coverage), then widened by the systematic
-error of the unit's own nominal parameters (:data:`SYSTEMATIC`, :func:`widened`): on simulated units the
-statistical part alone is 10× too narrow for load and motor_leak, whose fits are precise but biased by a few
+**Interval.** Each relation's fit gives MSE(s) = MSE_min + c·(s − ŝ)² (``ParityEstimates.curvature``), so for N
+residual blocks the least-squares standard error is se(ŝ) = √(MSE_min / ((N − 1)·c)) (the Gauss-Newton covariance;
+exact for the linear relations). The block residuals are not independent (the misfit of a unit whose parameters
+drifted since commissioning is slow), so se is multiplied by :data:`~hydrowatch.condition.estimates.SE_INFLATION`.
+The 95 % interval ŝ ± 1.96·se is mapped through the same monotone table (which keeps its coverage), then widened by
+the systematic error of the unit's own nominal parameters (:data:`SYSTEMATIC`, :func:`widened`): on simulated units
+the statistical part alone is 10× too narrow for load and motor_leak, whose fits are precise but biased by a few
 percent (docs/degradation.md).
 
 **Which valve-side part.** The four valve-side faults (pump_leak, relief_spring, valve_coil, valve_leak) are
@@ -50,7 +50,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
-from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.estimates import ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
@@ -62,8 +62,6 @@ TABLE_DROP = 0.6
 """Largest speed drop tabulated (index 2); beyond it the table is extrapolated linearly."""
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile."""
-SE_INFLATION = 2.0
-"""Factor on the least-squares standard error for the block residuals' correlation (docs/degradation.md)."""
 ATTRIBUTION_WINDOWS = 60
 """Valid windows (300 s) whose valve-relation fits decide which valve-side part wears. Wear is slow against five
 minutes; the verdicts' 12-window pool left a third of a duty cycle's windows of a valve_leak or relief_spring unit
@@ -126,26 +124,6 @@ def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantPa
     value = np.where(s > sev[-1], drop[-1] + high_slope * (s - sev[-1]), value)
     return np.asarray(value / ALERT_DROP)
 
-
-def severity_standard_error(mse: np.ndarray, curvature: np.ndarray, blocks: int,
-                            inflation: float = SE_INFLATION) -> np.ndarray:
-    """Standard error of a one-parameter fit's severity, shape (m,): inflation·√(MSE_min / ((N − 1)·c)).
-
-    Parameters
-    ----------
-    mse : ndarray, shape (m,)
-        Minimum mean squared block residual of the fit (its relation's unit squared).
-    curvature : ndarray, shape (m,)
-        d(MSE)/d(s²) at the fit (same unit per severity²); 0 or negative gives an infinite error.
-    blocks : int
-        Residual blocks N per window ((window − 1) // :data:`hydrowatch.condition.parity.BLOCK`).
-    inflation : float, default :data:`SE_INFLATION`
-        Factor for correlated residuals.
-    """
-    c = np.asarray(curvature, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        se = inflation * np.sqrt(np.asarray(mse, dtype=np.float64) / (max(blocks - 1, 1) * c))
-    return np.where(c > 0.0, se, np.inf)
 
 
 def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

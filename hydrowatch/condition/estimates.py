@@ -115,6 +115,10 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
                          tuple(r for r in RELATIONS if r in relations), leak, measured)
 
 
+SE_INFLATION = 2.0
+"""Factor on the least-squares standard error for the block residuals' correlation (docs/degradation.md)."""
+
+
 @dataclass(frozen=True)
 class ParityEstimates:
     """Unconstrained per-window estimates, each shape (m,).
@@ -134,6 +138,27 @@ class ParityEstimates:
     severity: Mapping[str, np.ndarray]
     mse: Mapping[str, np.ndarray]
     curvature: Mapping[str, np.ndarray]
+
+
+def severity_standard_error(mse: np.ndarray, curvature: np.ndarray, blocks: int,
+                            inflation: float = SE_INFLATION) -> np.ndarray:
+    """Standard error of a one-parameter fit's severity, shape (m,): inflation·√(MSE_min / ((N − 1)·c)).
+
+    Parameters
+    ----------
+    mse : ndarray, shape (m,)
+        Minimum mean squared block residual of the fit (its relation's unit squared).
+    curvature : ndarray, shape (m,)
+        d(MSE)/d(s²) at the fit (same unit per severity²); 0 or negative gives an infinite error.
+    blocks : int
+        Residual blocks N per window ((window − 1) // :data:`hydrowatch.condition.parity.BLOCK`).
+    inflation : float, default :data:`SE_INFLATION`
+        Factor for correlated residuals.
+    """
+    c = np.asarray(curvature, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = inflation * np.sqrt(np.asarray(mse, dtype=np.float64) / (max(blocks - 1, 1) * c))
+    return np.where(c > 0.0, se, np.inf)
 
 
 def merged_estimates(found: list[tuple[np.ndarray, ParityEstimates]], valid: np.ndarray) -> ParityEstimates | None:

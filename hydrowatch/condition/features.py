@@ -355,12 +355,13 @@ class ConditionFeatures(EvidenceRows):
         if not (per_window or relief):
             return box
         scale = self._load_scale() if relief else None
+        blocks = (self.window - 1) // E.parity.BLOCK
 
         def of(est: E.ParityEstimates) -> E.Box:
             out: E.Box = box
             if factors is not None and per_window:
-                out = oil_box(box, self.nominal_, motor_factors(est.severity["motor_leak"], est.curvature["motor_leak"],
-                                                                est.mse["motor"], self.window, self.nominal_, factors))
+                se = E.severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], blocks)
+                out = oil_box(box, self.nominal_, motor_factors(est.severity["motor_leak"], se, self.nominal_, factors))
             if scale is None:
                 return out
             return scaled_load_box(out, *window_factors(scale, est.severity["relief_spring"],

@@ -50,10 +50,6 @@ pump leak's warning and alert overlap)."""
 FACTOR_SPREAD = 0.10
 """Relative error of the oil's leakage factor read from one window's motor leakage (:func:`motor_factors`) besides
 its noise: the unit's identified Ctm and its drift since (measured below)."""
-FACTOR_NOISE = 6.0
-"""Multiple of the motor estimate's least-squares standard error in :func:`motor_factors`: its residuals are
-correlated (the load pressure's derivative), so the true scatter is about 3 × the white-noise formula's; 6 is
-about two of those."""
 
 LEAK_BASELINE: dict[str, Callable[[PlantParameters], float]] = {
     "pump_leak": lambda p: p.Cp + p.Cpl + p.Cvl,
@@ -92,24 +88,22 @@ def oil_box(box: Mapping[str, tuple[float, float]], p: PlantParameters,
     return out
 
 
-def motor_factors(motor_leak: np.ndarray, curvature: np.ndarray, mse: np.ndarray, samples: int,
-                  p: PlantParameters, factors: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def motor_factors(motor_leak: np.ndarray, standard_error: np.ndarray, p: PlantParameters,
+                  factors: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Per window, the leakage factors (low, high) the motor's own leakage allows, inside ``factors``.
 
     One oil wets every leakage path, so a window whose motor is healthy tells the oil's factor f
     from the motor relation: its severity read at f = 1 is ŝ = (f − 1)·c₀, c₀ = Ctm / Cref, so
-    f̂ = 1 + ŝ / c₀. The range is f̂ within ``FACTOR_SPREAD`` in ratio, widened by
-    ``FACTOR_NOISE`` × the estimate's standard error (√(MSE / (curvature · samples)) / c₀), clipped to
-    ``factors``; a window whose motor relation has no curvature (no flow or speed sensor) or a unit
-    without motor leakage keeps all of ``factors``.
+    f̂ = 1 + ŝ / c₀. The range is f̂ within ``FACTOR_SPREAD`` in ratio, widened by the estimate's
+    standard error se / c₀ (added in quadrature), clipped to ``factors``; a window whose motor
+    relation determines nothing (an infinite error: no flow or speed sensor) or a unit without
+    motor leakage keeps all of ``factors``.
 
     Parameters
     ----------
-    motor_leak, curvature, mse : ndarray, shape (m,)
-        The windows' free motor_leak severity, its curvature d(MSE)/d(s²) and the motor relation's
-        free MSE, (L/min)² (:class:`~hydrowatch.condition.estimates.ParityEstimates`).
-    samples : int
-        Samples per window.
+    motor_leak, standard_error : ndarray, shape (m,)
+        The windows' free motor_leak severity and its standard error
+        (:func:`~hydrowatch.condition.estimates.severity_standard_error`).
     p : PlantParameters
         The unit's nominal parameters.
     factors : (float, float)
@@ -120,11 +114,9 @@ def motor_factors(motor_leak: np.ndarray, curvature: np.ndarray, mse: np.ndarray
     m = np.asarray(motor_leak).shape[0]
     if c0 <= 0.0:
         return np.full(m, lo), np.full(m, hi)
-    ok = np.isfinite(motor_leak) & (curvature > 0.0)
-    curv = np.where(ok, curvature, 1.0)
+    ok = np.isfinite(motor_leak) & np.isfinite(standard_error)
     f = np.clip(1.0 + np.where(ok, motor_leak, 0.0) / c0, lo, hi)
-    error = np.sqrt(np.maximum(np.where(ok, mse, 0.0), 0.0) / (curv * samples)) / c0
-    spread = 1.0 + np.hypot(FACTOR_SPREAD, FACTOR_NOISE * error)
+    spread = 1.0 + np.hypot(FACTOR_SPREAD, np.where(ok, standard_error, 0.0) / c0)
     return (np.where(ok, np.maximum(lo, f / spread), lo), np.where(ok, np.minimum(hi, f * spread), hi))
 
 
