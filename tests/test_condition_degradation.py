@@ -155,6 +155,23 @@ def test_index_on_a_simulated_unit_matches_the_true_speed_drop_and_its_interval_
     assert max(np.max(np.abs(healthy.value[f])) for f in FAULTS) < 0.1
 
 
+def test_a_leak_is_read_at_the_brake_torque_of_the_day(unit_case):
+    """The brake 6 % heavier than at commissioning (a later day): a motor leak at the alert of the machine as it runs
+    reads 1.0, because the index is read at the brake the load relation finds (condition/brake.py); at θ0's brake
+    it reads low."""
+    features, _, _ = unit_case
+    unit = features.nominal_
+    day = unit.replace(TL=unit.TL * 1.06)
+    worn = fault_parameters(day, "motor_leak", severity_for_speed_drop("motor_leak", ALERT_DROP, day))
+    w = _windows([worn], duty_cycle(120, (0.5, 3.5), seed=4), 5)[0]
+    d = features_degradation(features, w)
+    assert np.nanmean(d.value["motor_leak"]) == pytest.approx(1.0, abs=0.015)
+    assert np.nanmean(d.value["load"]) == pytest.approx(0.06 / level_severity("load", "alert", unit), abs=0.03)
+    valid, est = features.evidence_and_estimates(w)[1:]
+    at_theta0 = window_degradation(est, valid, unit, (W - 1) // 8, features.relations_, brake=np.ones(int(valid.sum())))
+    assert np.nanmean(at_theta0.value["motor_leak"]) < 0.97
+
+
 def test_invalid_windows_have_no_index_and_json_leaves_them_out(unit_case):
     features, _, windows = unit_case
     w = windows[1].copy()

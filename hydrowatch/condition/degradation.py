@@ -10,7 +10,9 @@ component's estimated condition would cause on its own, on this unit, divided by
 (:mod:`hydrowatch.condition.estimates`; study Eqs. 2.1–2.5 as relations). So 0 = as commissioned, 0.5 = warning,
 1.0 = alert, above 1 beyond it; slightly negative values are noise around a part as good as new (kept, so that
 averages stay unbiased). The map ŝ → I is a monotone table per (fault, unit)
-(:func:`hydrowatch.plant.faults.speed_drop_table`), linearly extrapolated beyond it.
+(:func:`hydrowatch.plant.faults.speed_drop_table`), linearly extrapolated beyond it. Every part but the load is read
+on θ0 with the brake torque the machine's load relation finds now (:mod:`hydrowatch.condition.brake`): a leak's
+flow, and so its speed drop, grows with the load pressure the brake sets.
 
 **Interval.** Each relation's fit gives MSE(s) = MSE_min + c·(s − ŝ)² (``ParityEstimates.curvature``), so for N
 residual blocks the least-squares standard error is se(ŝ) = √(MSE_min / ((N − 1)·c)) (the Gauss-Newton covariance;
@@ -50,6 +52,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
+from hydrowatch.condition.brake import brake_factors, with_brake
 from hydrowatch.condition.estimates import ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
@@ -234,7 +237,8 @@ class Degradation:
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
                        relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
-                       blamed: np.ndarray | None = None, excess: np.ndarray | None = None) -> Degradation:
+                       blamed: np.ndarray | None = None, excess: np.ndarray | None = None,
+                       brake: np.ndarray | None = None) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -256,6 +260,10 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     excess : ndarray, shape (n, 4), optional
         With ``blamed``: each valve hypothesis's pool misfit minus the blamed part's (None: every window told
         apart).
+    brake : ndarray, shape (m,), optional
+        Brake factor g of each valid window (:func:`~hydrowatch.condition.brake.brake_factors`; None: from the
+        estimates' load severities over ``pool`` windows, 1 where the sensors do not test the load relation). Every
+        part but the load is read on θ0 with TL·g (:mod:`hydrowatch.condition.brake`).
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
@@ -269,13 +277,17 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     contender = (np.zeros((n, len(parity.VALVE_HYPOTHESES)), dtype=bool) if excess is None
                  else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
     untold = contender.sum(axis=1) > 1
+    if brake is None:
+        brake = (brake_factors(estimates.severity["load"], pool) if "load" in relations
+                 else np.ones(int(valid.sum())))
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
         s = estimates.severity[fault]
         se = severity_standard_error(mse[fault], estimates.curvature[fault], blocks)
         determined = estimates.curvature[fault] * DETERMINED_STEP**2 >= mse[fault]
-        v, lo, hi = degradation_index(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal)  # one table look-up
+        v, lo, hi = _indices(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal,
+                             np.ones_like(s) if fault == "load" else brake)
         lo, hi = widened(v, lo, hi)
         if fault in parity.VALVE_HYPOTHESES:
             j = parity.VALVE_HYPOTHESES.index(fault)
@@ -290,6 +302,16 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
     return Degradation(value, low, high, measured)
+
+
+def _indices(fault: str, severity: np.ndarray, nominal: PlantParameters, brake: np.ndarray) -> np.ndarray:
+    """:func:`degradation_index` of severities (k, m) whose column i is read on θ0 with TL × ``brake[i]``: one table
+    look-up per distinct brake factor."""
+    out = np.empty(severity.shape)
+    for g in np.unique(brake):
+        at = brake == g
+        out[:, at] = degradation_index(fault, severity[:, at], with_brake(nominal, float(g)))
+    return out
 
 
 def _spread(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -330,6 +352,7 @@ class DegradationStream:
     def __init__(self, features: ConditionFeatures, pool: int = ATTRIBUTION_WINDOWS) -> None:
         self.features, self.pool = features, pool
         self._fits: deque[np.ndarray] = deque(maxlen=pool)
+        self._loads: deque[float] = deque(maxlen=pool)
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
                curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
@@ -343,7 +366,11 @@ class DegradationStream:
             ring = np.stack(self._fits, axis=-1)  # (hypothesis, ŝ / MSE / c, window)
             misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
+        brake = np.ones(1)
+        if "load" in f.relations_:
+            self._loads.append(float(severity["load"]))
+            brake = brake_factors(np.array(self._loads), self.pool)[-1:]
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed, excess)
+                                   f.relations_, self.pool, blamed, excess, brake)
         return found.window(0, measured=True)
