@@ -7,7 +7,7 @@ that asked for it (the innermost of calibrate, screen, recalibrate, polish, sett
 identify on the call stack). Prints the bench's row (named, right, wall and CPU seconds, load) with
 ``sims`` (per step and ``total``), ``sim_cpu`` (CPU s per step) and ``sims_by_length``.
 
-    HYDROWATCH_THREADS=2 python benchmarks/bench_gap_cost.py [CASE] [--seed 2035] [--unit 0] [-v]
+    HYDROWATCH_THREADS=2 python benchmarks/bench_gap_cost.py [CASE] [--seed 2035] [--unit 0] [-v] [--report OUT.json]
 
 Without arguments it runs the slowest known case, the dev pair (gear_backlash+entrained_air, seed 2035).
 
@@ -76,11 +76,13 @@ def main() -> None:
     parser.add_argument("--seed", "--population", dest="population", type=int, default=REFERENCE_SEED)
     parser.add_argument("--unit", type=int, default=0)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="log the analysis' steps to stderr")
+    parser.add_argument("--report", type=Path, help="write the analysis' whole report (JSON) here, to compare two "
+                        "versions of the code field by field (a change meant to save time must leave it equal)")
     args = parser.parse_args()
     configure(args.verbose)
     counter = Counter()
     counter.install()
-    row = bench.one_run(args.case, args.population, args.unit)
+    row = bench.one_run(args.case, args.population, args.unit, args.report)
     row["sims"] = {k: round(v) for k, v in counter.records.most_common()}
     row["sim_cpu"] = {k: round(v, 1) for k, v in counter.cpu.most_common()}
     row["sims_by_length"] = {k: round(v) for k, v in counter.by_length.most_common()}

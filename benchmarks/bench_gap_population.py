@@ -111,12 +111,15 @@ def _out_of_catalog(rec: Recording, case: str, rng: np.random.Generator, plant: 
     return Recording(rec.t, channels, rec.meta)
 
 
-def one_run(case: str, population: int, unit: int) -> dict:
-    """Analyse one run; the row of the table."""
+def one_run(case: str, population: int, unit: int, report_path: Path | None = None) -> dict:
+    """Analyse one run; the row of the table. ``report_path``: also write the analysis' whole report there (JSON),
+    to compare two versions of the code field by field."""
     rec, expected = recording(case, population, unit)
     start, cpu = time.perf_counter(), time.process_time()
     report = GapAnalyser().fit(rec).report_
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    if report_path is not None:
+        report_path.write_text(json.dumps(report, indent=1))
     named = [e["id"] for e in report["effects"]]
     fit, noise = report["fit"], report["noise"]
     ratio = {s: fit["calibrated"][s] / noise[s] for s in noise}

@@ -2,14 +2,28 @@
 are switched on but do nothing leave the nominal path bit for bit, a sample's sensors do not depend on the
 command (the kernel takes them from the interval's first RK4 stage), and it runs beside other threads."""
 
+import math
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from hydrowatch.plant import CHANNELS, PlantParameters, PlantSimulator
-from hydrowatch.plant.dynamics import N_COEF, N_LOAD, N_ODE, PL, PS, coefficients, rates
-from hydrowatch.plant.effects import effect_row
-from hydrowatch.plant.kernel import CHANNELS_OUT, _advance_compiled
+from hydrowatch.plant.dynamics import (
+    EXP_ZERO,
+    N_COEF,
+    N_LOAD,
+    N_ODE,
+    PL,
+    PS,
+    TANH_ONE,
+    _stribeck,
+    _tanh,
+    coefficients,
+    derivatives,
+    rates,
+)
+from hydrowatch.plant.effects import EFFECT_OFFSET, effect_row
+from hydrowatch.plant.kernel import CHANNELS_OUT, _advance_compiled, _region, _rk4_from_outlined, _step_past_kink
 
 INERT = {  # every effect here is on, with the setting at which its physics vanishes exactly
     "stribeck_friction": {"Tc": 0.0, "Ts": 0.0},
@@ -142,3 +156,44 @@ def test_simulators_in_threads_equal_serial_runs():
     for m in range(4):
         for k in CHANNELS:
             assert np.array_equal(serial[m][k], threaded[m][k]), (m, k)
+
+
+def _bits(values: np.ndarray) -> np.ndarray:
+    return np.asarray(values, dtype=np.float64).view(np.int64)
+
+
+def test_tanh_and_exp_shortcuts_are_libm_bit_for_bit():
+    """The right-hand side skips libm's tanh where it is ±1 (|x| ≥ TANH_ONE) and exp where it underflows to 0
+    (issue 12, item 5): the same floats as math.tanh / math.exp on both sides of each threshold, ±0, ±inf and NaN."""
+    x = np.concatenate([np.linspace(-30.0, 30.0, 60001), [TANH_ONE, np.nextafter(TANH_ONE, 0.0), -TANH_ONE, 0.0, -0.0,
+                                                          1e300, -1e300, np.inf, -np.inf]])
+    assert np.array_equal(_bits([_tanh(v) for v in x]), _bits([math.tanh(v) for v in x]))
+    assert math.isnan(_tanh(math.nan))
+    below = np.linspace(EXP_ZERO - 5.0, EXP_ZERO + 5.0, 1001)
+    assert all(math.exp(v) == 0.0 for v in below if v < EXP_ZERO)  # the threshold the Stribeck term relies on
+    row = effect_row({"stribeck_friction": {"Tc": 0.2, "Ts": 1.0, "omega_st": 0.5, "omega_eps": 0.5}})
+    for wm in (0.0, 1e-3, 0.3, 11.0, 13.6, 13.7, 20.0, 40.0, -40.0):  # exp(−(ωm/ωst)²) underflows from ωm ≈ 13.65 rad/s
+        tc, ts, w_st, w_eps = (row[EFFECT_OFFSET["stribeck_friction"] + i] for i in range(1, 5))
+        plain = (tc + (ts - tc) * math.exp(-((wm / w_st) ** 2))) * math.tanh(wm / w_eps)
+        assert _bits([_stribeck(row, wm)]) == _bits([plain]), wm
+
+
+def test_the_kink_bisection_returns_the_step_to_the_kink_from_the_same_first_stage():
+    """A step whose spool passes zero: the bisection's state past the kink is the RK4 step of the returned length
+    from the same state and first stage, bit for bit, it has left the region and 2**-12 of a step less has not
+    (issue 12, item 5: the bisection reuses the step's first stage and its last trial step)."""
+    p = PlantParameters()
+    coef = np.empty(N_COEF + N_LOAD)
+    coefficients(p.as_array(), coef)
+    row = effect_row(None)
+    y = (2e-4, -1.0, 1.5e7, 2e6, 50.0, 0.0, 0.0, 40.0, 0.0)  # x > 0 moving down: through zero in 0.2 ms
+    h, t, u = 5e-4, 0.0, 0.0
+    code = _region(coef, row, y)
+    k1 = derivatives(coef, row, y, u, t, True)[0]
+    whole = _rk4_from_outlined(coef, row, y, k1, u, t, h, True)
+    assert _region(coef, row, whole) != code
+    done, past = _step_past_kink(coef, row, y, k1, whole, u, t, h, True, code)
+    assert 0.0 < done < h
+    assert _bits(past).tolist() == _bits(_rk4_from_outlined(coef, row, y, k1, u, t, done, True)).tolist()
+    assert _region(coef, row, past) != code
+    assert _region(coef, row, _rk4_from_outlined(coef, row, y, k1, u, t, done - h / 4096, True)) == code

@@ -98,6 +98,18 @@ _SHAFT = EFFECT_OFFSET["shaft_compliance"]
 _LOWPASS = EFFECT_OFFSET["sensor_lowpass"]
 _T_REF = REFERENCE_TEMPERATURE_C
 
+TANH_ONE = 22.0
+"""|x| from which tanh(x) is ±1 in double precision: libm's tanh returns ±1 there without computing (it rounds to
+±1 from |x| ≈ 19.06 on), so :func:`_tanh` skips the call (issue 12, item 5; the same bits)."""
+EXP_ZERO = -746.0
+"""x below which exp(x) underflows to 0.0 in double precision (below the smallest subnormal from x ≈ −745.13)."""
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _tanh(x: float) -> float:
+    """math.tanh(x), bit for bit, without the libm call where it is ±1 (|x| ≥ TANH_ONE)."""
+    return math.copysign(1.0, x) if abs(x) >= TANH_ONE else math.tanh(x)
+
 
 @njit(cache=True, error_model="numpy")
 def _air_bulk_modulus(beta_oil: float, p_gauge: float, alpha: float, n: float) -> float:
@@ -115,7 +127,7 @@ def _air_bulk_modulus(beta_oil: float, p_gauge: float, alpha: float, n: float) -
 @njit(cache=True, error_model="numpy")
 def _load_torque(c: np.ndarray, e: np.ndarray, w: float) -> float:
     """TL_total at gearbox output speed w (Eq. 7: brake TL·tanh(w/ωs) + BL·w), plus quadratic_drag, N·m."""
-    torque = c[C_TL] * math.tanh(w * c[C_INV_WS]) + c[C_BL] * w
+    torque = c[C_TL] * _tanh(w * c[C_INV_WS]) + c[C_BL] * w
     if e[_DRAG] > 0.5:
         torque += e[_DRAG + 1] * w * abs(w)
     return torque
@@ -200,7 +212,9 @@ def _metering_opening(e: np.ndarray, x: float) -> float:
 def _stribeck(e: np.ndarray, wm: float) -> float:
     """stribeck_friction at motor speed wm [rad/s]: (Tc + (Ts − Tc)·exp(−(ωm/ωst)²))·tanh(ωm/ωε), N·m."""
     tc, ts, w_st, w_eps = e[_FRICTION + 1], e[_FRICTION + 2], e[_FRICTION + 3], e[_FRICTION + 4]
-    return (tc + (ts - tc) * math.exp(-((wm / w_st) ** 2))) * math.tanh(wm / w_eps)
+    exponent = -((wm / w_st) ** 2)
+    fade = 0.0 if exponent < EXP_ZERO else math.exp(exponent)
+    return (tc + (ts - tc) * fade) * _tanh(wm / w_eps)
 
 
 @njit(cache=True, error_model="numpy")
