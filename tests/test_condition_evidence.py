@@ -16,7 +16,7 @@ from hydrowatch.condition import (
     trailing_evidence,
 )
 from hydrowatch.condition.evidence import SEVERITY_TOLERANCE, trailing_count
-from hydrowatch.condition.model import CLEAR_FACTOR, POOLED_EXCESS
+from hydrowatch.condition.model import CLEAR_FACTOR, CLEAR_WINDOWS, POOLED_EXCESS
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 
@@ -144,6 +144,10 @@ def test_a_pool_reads_unknown_only_when_a_window_did_or_its_excess_is_clear(trai
 
     assert states_of([0, 1, 0]) == ["pump_leak_warning", "unknown", "unknown"]
     assert states_of([0, 0, 0])[0] == "pump_leak_warning"
+    assert states_of([0, 0, 0])[2] == "unknown"  # clear, over 12 windows
+    # over fewer than CLEAR_WINDOWS windows (a recording's first) the clear limit does not judge: the window itself did
+    short = model.judge_pooled(rows, rows, rows, windows=np.array([12, 12, CLEAR_WINDOWS - 1]), support=np.zeros(3))
+    assert short[2].state == "pump_leak_warning"
     assert model.judge_pooled(rows, rows, rows, windows=np.full(3, 12))[0].state == "unknown"  # not counted: as before
     # the batch form counts the windows that read unknown alone over the same trailing windows it pools
     flags = np.array([True, False, False, True, False])

@@ -69,6 +69,15 @@ of bench_unseen_units.py re-judged at the limit 2.0): changes of at most 0.8 poi
 cycle, worst unit 90.0 → 90.8; the commissioned open set 93.1 → 92.8 and 91.7 → 91.1 for the median unit);
 docs/unseen-units.md, "Pooling never makes a verdict worse"."""
 
+CLEAR_WINDOWS = 3
+"""The clear limit (:data:`CLEAR_FACTOR`) rejects only pools of at least this many windows. Over one or two windows
+the pooled mean excess is a single window's statistic, which the per-window open-set rule has already judged, and
+the limit was set on the spread of 12-window pools: at the start of a recording (the pool's first windows) it read
+known machines ``unknown`` that no window alone rejected (fresh seed 2046: an own 7-state unit's pump_leak_alert in
+its first window, a duty-commissioned unit's in its first two). Re-judged on the kept rows of seeds 2033 (tuning),
+2045 and 2046: no worst unit lower, pooled below per window on 2 units fewer, the open set 0.2 points lower for the
+median unit (98.1 → 97.9 on 2045, 97.4 → 97.2 on 2046; docs/unseen-units.md)."""
+
 
 class _Columns:
     """A decision or open-set rule seen through columns [lo, hi) of the feature rows (for :func:`judge`).
@@ -78,7 +87,8 @@ class _Columns:
     each part reads its own columns. With ``limit`` the open set also rejects rows whose best known
     state leaves a summed excess min_k Σ_r (F[r, k] − 1) above it (pooled evidence); with ``support`` (n,), how
     many windows of each pooled row read ``unknown`` alone, a row none of whose windows did is rejected only above
-    :data:`CLEAR_FACTOR` × ``limit`` (its novelty score then at most 1).
+    :data:`CLEAR_FACTOR` × ``limit`` (its novelty score then at most 1), and then only if it pools at least
+    :data:`CLEAR_WINDOWS` windows (``windows``, (n,)).
     """
 
     def __init__(self, part: Any, lo: int, hi: int, limit: float | None = None,
@@ -109,6 +119,8 @@ class _Columns:
         if self.limit is None or self.support is None:
             return np.zeros(np.atleast_2d(features).shape[0], dtype=bool)
         clear = np.nan_to_num(self._excess(features)) > CLEAR_FACTOR * self.limit
+        if self.windows is not None:
+            clear &= np.asarray(self.windows) >= CLEAR_WINDOWS
         return cast(np.ndarray, (np.asarray(self.support) <= 0) & ~clear)
 
     def score(self, features: np.ndarray) -> np.ndarray:
@@ -273,7 +285,8 @@ class ConditionModel:
         width = d.shape[1]
         return judge(np.concatenate([d, o], axis=1), cast(Any, _Columns(self.decision_, 0, width, windows=windows)),
                      cast(Any, _Columns(self.open_set_, width, width + width // 2,
-                                        self.pooled_excess_ if pooled else None, support=support)), reasons)
+                                        self.pooled_excess_ if pooled else None, windows=windows,
+                                        support=support)), reasons)
 
     def score(self, rec_windows: np.ndarray, n_samples: int | None = None,
               smoothing: int = 1) -> tuple[np.ndarray, list[Verdict]]:
