@@ -30,8 +30,7 @@ LIMITS = (0.5, 4.0)
 
 
 def brake_factors(load: np.ndarray, pool: int) -> np.ndarray:
-    """g per window, shape (m,): 1 + the median load severity of the window and the ``pool`` − 1 before it, rounded
-    to :data:`STEP` in log and clipped to :data:`LIMITS` (1 where no load severity is known).
+    """g per window, shape (m,): :func:`brake_factor` of the window's load severity and the ``pool`` − 1 before it.
 
     Parameters
     ----------
@@ -41,10 +40,15 @@ def brake_factors(load: np.ndarray, pool: int) -> np.ndarray:
         Windows in the trailing median.
     """
     s = np.asarray(load, dtype=np.float64)
-    median = np.array([np.nanmedian(s[max(0, i - pool + 1): i + 1]) if np.isfinite(s[max(0, i - pool + 1): i + 1]
-                                                                                     ).any() else 0.0
-                       for i in range(s.size)])
-    return rounded(1.0 + median)
+    return np.array([brake_factor(s[max(0, i - pool + 1): i + 1]) for i in range(s.size)])
+
+
+def brake_factor(load: np.ndarray) -> float:
+    """g of one window from its trailing windows' load severities (m,): 1 + their median (NaN skipped; 1 when none
+    is finite), clipped to :data:`LIMITS` and rounded to :data:`STEP` in log."""
+    s = np.asarray(load, dtype=np.float64)
+    median = float(np.median(s[np.isfinite(s)])) if np.isfinite(s).any() else 0.0
+    return float(rounded(np.array(1.0 + median)))
 
 
 def rounded(g: np.ndarray) -> np.ndarray:

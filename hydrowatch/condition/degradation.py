@@ -52,7 +52,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
-from hydrowatch.condition.brake import brake_factors, with_brake
+from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
 from hydrowatch.condition.estimates import ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
@@ -369,7 +369,7 @@ class DegradationStream:
         brake = np.ones(1)
         if "load" in f.relations_:
             self._loads.append(float(severity["load"]))
-            brake = brake_factors(np.array(self._loads), self.pool)[-1:]
+            brake = np.array([brake_factor(np.array(self._loads))])  # the ring holds the pool's last windows
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed, excess, brake)
