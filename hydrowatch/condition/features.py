@@ -42,7 +42,7 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
 from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
-from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_factors, oil_box, oil_parts
+from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_oil_box, oil_box, oil_parts
 from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
 from hydrowatch.condition.unit import UnitFit, identify_unit
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
@@ -274,16 +274,14 @@ class ConditionFeatures(EvidenceRows):
         return self.nominal_
 
     def _by_oil(self, windows: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]:
-        """The windows split by whether they carry the oil temperature: (mask, windows, known) per part present.
-
-        A window without it (4 channels, or the temperature all NaN) is judged with the leak boxes
-        widened by ``oil_range`` (:meth:`_box_sets`) and given as 4 channels.
-        """
+        """The windows split by whether they carry the oil temperature: (mask, windows, known) per part present; a
+        window without it (4 channels, or the temperature all NaN) goes as 4 channels (boxes: :meth:`_box_of`)."""
         self._check_fitted()
         return oil_parts(L.check_windows(windows, self.window), L.WIDTH)
 
     def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]:
-        """(band, level) boxes of every state; for windows without the oil temperature widened by ``oil_range``."""
+        """(band, level) boxes of every state that pooling clips to (``evidence_layout``); for windows without the oil
+        temperature widened by the whole ``oil_range`` (per window, :meth:`_box_of` narrows them by the motor's oil)."""
         if temperature or self.oil_range == 0.0:
             return self.boxes_, self.level_boxes_
         factors = leakage_range(self.viscosity_coefficient, self.oil_range)
@@ -346,26 +344,20 @@ class ConditionFeatures(EvidenceRows):
         (:mod:`hydrowatch.condition.oil`), per window by what the motor's leakage tells of the oil unless the state
         is a motor leak (:func:`~hydrowatch.condition.oil.motor_factors`); for a state that follows the relief, its
         load range scaled by each window's relief."""
-        factors = None if known or self.oil_range == 0.0 else leakage_range(self.viscosity_coefficient,
-                                                                            self.oil_range)
-        per_window = factors is not None and parse_state(state)[0] != "motor_leak"
-        if factors is not None and not per_window:
-            box = oil_box(box, self.nominal_, factors)
-        relief = self._follows_relief(state)
-        if not (per_window or relief):
+        oil = None if known or self.oil_range == 0.0 else leakage_range(self.viscosity_coefficient, self.oil_range)
+        if oil is not None and parse_state(state)[0] == "motor_leak":  # its motor path is the fault: the whole range
+            box, oil = oil_box(box, self.nominal_, oil), None
+        scale = self._load_scale() if self._follows_relief(state) else None
+        if oil is None and scale is None:
             return box
-        scale = self._load_scale() if relief else None
-        blocks = (self.window - 1) // E.parity.BLOCK
+        p, blocks = self.nominal_, (self.window - 1) // E.parity.BLOCK
 
         def of(est: E.ParityEstimates) -> E.Box:
-            out: E.Box = box
-            if factors is not None and per_window:
-                se = E.severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], blocks)
-                out = oil_box(box, self.nominal_, motor_factors(est.severity["motor_leak"], se, self.nominal_, factors))
-            if scale is None:
-                return out
-            return scaled_load_box(out, *window_factors(scale, est.severity["relief_spring"],
-                                                        est.curvature["relief_spring"], RELIEF_LIMITS)[:2])
+            out: E.Box = box if oil is None else motor_oil_box(
+                box, p, est.severity["motor_leak"],
+                E.severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], blocks), oil)
+            return out if scale is None else scaled_load_box(out, *window_factors(
+                scale, est.severity["relief_spring"], est.curvature["relief_spring"], RELIEF_LIMITS)[:2])
         return of
 
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:

@@ -59,6 +59,12 @@ LEAK_BASELINE: dict[str, Callable[[PlantParameters], float]] = {
 """Healthy leakage, m³/(s·Pa), of the path each leak fault adds to (``fault_parameters`` of plant.faults)."""
 
 
+def _reference_conductance(p: PlantParameters) -> float:
+    """Cref = Dp·ωp/Pc, m³/(s·Pa) (as ``parity.reference_conductance``; not imported from there: importing any
+    module of ``hydrowatch.condition`` loads the package, which imports this one)."""
+    return p.Dp * p.omega_p / p.Pc
+
+
 def leakage_range(viscosity_coefficient: float, oil_range: float) -> tuple[float, float]:
     """Leakage factors (f_lo, f_hi) of oil ``oil_range`` K colder and warmer than 40 °C (k in 1/K)."""
     return float(np.exp(-viscosity_coefficient * oil_range)), float(np.exp(viscosity_coefficient * oil_range))
@@ -77,7 +83,7 @@ def oil_box(box: Mapping[str, tuple[float, float]], p: PlantParameters,
     factors : (float, float) or (ndarray, ndarray)
         (f_lo, f_hi), :func:`leakage_range`; or per window, shape (m,) each (:func:`motor_factors`).
     """
-    c_ref = p.Dp * p.omega_p / p.Pc
+    c_ref = _reference_conductance(p)
     out: dict[str, tuple[Any, Any]] = dict(box)
     for fault, baseline in LEAK_BASELINE.items():
         if fault in out:
@@ -110,7 +116,7 @@ def motor_factors(motor_leak: np.ndarray, standard_error: np.ndarray, p: PlantPa
         (f_lo, f_hi) of :func:`leakage_range`.
     """
     lo, hi = factors
-    c0 = p.Ctm / (p.Dp * p.omega_p / p.Pc)
+    c0 = LEAK_BASELINE["motor_leak"](p) / _reference_conductance(p)
     m = np.asarray(motor_leak).shape[0]
     if c0 <= 0.0:
         return np.full(m, lo), np.full(m, hi)
@@ -118,6 +124,12 @@ def motor_factors(motor_leak: np.ndarray, standard_error: np.ndarray, p: PlantPa
     f = np.clip(1.0 + np.where(ok, motor_leak, 0.0) / c0, lo, hi)
     spread = 1.0 + np.hypot(FACTOR_SPREAD, np.where(ok, standard_error, 0.0) / c0)
     return (np.where(ok, np.maximum(lo, f / spread), lo), np.where(ok, np.minimum(hi, f * spread), hi))
+
+
+def motor_oil_box(box: Mapping[str, tuple[float, float]], p: PlantParameters, motor_leak: np.ndarray,
+                  standard_error: np.ndarray, factors: tuple[float, float]) -> dict[str, tuple[Any, Any]]:
+    """:func:`oil_box` widened per window by :func:`motor_factors` (a state whose motor is healthy)."""
+    return oil_box(box, p, motor_factors(motor_leak, standard_error, p, factors))
 
 
 def temperature_known(windows: np.ndarray, width: int) -> np.ndarray:
