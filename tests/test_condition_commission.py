@@ -350,3 +350,16 @@ def test_load_states_follow_the_windows_relief_where_commissioning_left_it_open(
         assert open_[n]["relief_spring_warning"] >= 0.9, got
         for s in ("healthy", "relief_spring_warning"):
             assert open_[n][s] == fixed[n][s], got
+
+
+def test_each_held_out_half_counts_once_in_the_supply_choice() -> None:
+    """held_out_ratio: the geometric mean of the two directions' error ratios, so a half that extrapolates with either
+    supply does not decide alone (seed 2047 unit 17's errors: a sum would keep the trained unit's supply)."""
+    kept, whole = np.array([0.00551, 0.000303]), np.array([0.00774, 0.000197])
+    assert kept.sum() / whole.sum() < C.HELD_OUT_RATIO  # the sum: 0.73, the kept supply
+    ratio = C.held_out_ratio(kept, whole)
+    assert ratio == pytest.approx(np.sqrt(0.00551 / 0.00774 * 0.000303 / 0.000197), rel=1e-12)
+    assert ratio > C.HELD_OUT_RATIO  # 1.05: the whole fit
+    assert C.held_out_ratio(whole, kept) == pytest.approx(1.0 / ratio, rel=1e-12)
+    assert C.held_out_ratio(np.array([2.0, 8.0]), np.array([1.0, 2.0])) == pytest.approx(np.sqrt(8.0), rel=1e-12)
+    assert C.held_out_ratio(np.array([1.0, 1.0]), np.array([0.0, 1.0])) > 1e100  # a perfect fit is not a division by 0

@@ -88,8 +88,9 @@ filtered noise 0–4 V, 0.001–0.042 (8 of 8 units; commissioned, 100 % right f
 duty cycles, 0.008–1.0 (13 of 16 above 0.15)."""
 HELD_OUT_RATIO = 1.0
 """When the halves disagree, the whole fit is still used if the kept supply's 2-fold held-out valve error is more
-than this many times the whole fits' (:func:`identify_for_commissioning`): the choice that predicts the other half
-better. Until 2026-11-26 it was 2 (chosen on seed 2030 among 1, 2, 3 and 5), because a single start of the fit
+than this many times the whole fits' (:func:`held_out_ratio`, the geometric mean over the two directions since the
+night of 2026-11-26; the sum of the two until then): the choice that predicts the other half better. Until
+2026-11-26 it was 2 (chosen on seed 2030 among 1, 2, 3 and 5), because a single start of the fit
 stopped in local minima along the relief's ridge (three of seed 2030's whole fits had the relief 8–20 % low) and
 the halves' fits in worse ones (seed 2032, unit 8: one half's fit predicted the other with 70 × the error of the
 whole fit). With the fits started along the ridge (:data:`~hydrowatch.condition.unit.RIDGE_STARTS`) and each half
@@ -193,7 +194,7 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     When the halves disagree, each half is also fitted with the trained
     unit's supply (:data:`RESTRICTED_PARAMETERS`), and every half's fit predicts the other half's valve
     relation (:func:`~hydrowatch.condition.unit.valve_error`, 2-fold): the whole fit is still used when its
-    held-out error is :data:`HELD_OUT_RATIO` times smaller than the kept supply's (and its level
+    held-out error is :data:`HELD_OUT_RATIO` times smaller than the kept supply's (:func:`held_out_ratio`; and its level
     uncertainty within the limit). Otherwise only :data:`RESTRICTED_PARAMETERS` are identified
     (``supply`` "kept from the trained unit": record 5 minutes of filtered noise over the command range to
     identify it).
@@ -207,13 +208,14 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
         raise CommissioningError(present)
     first, second = (identify_unit(part, *args, start=whole.parameters) for part in parts)
     split = float(np.max(np.abs(np.log(levels(features, first.parameters) / levels(features, second.parameters)))))
-    def crossed(a: UnitFit, b: UnitFit) -> float:  # a predicts the second half, b the first
-        return valve_error(parts[1], a.parameters, *args[1:]) + valve_error(parts[0], b.parameters, *args[1:])
+    def crossed(a: UnitFit, b: UnitFit) -> np.ndarray:  # a predicts the second half, b the first
+        return np.array([valve_error(parts[1], a.parameters, *args[1:]),
+                         valve_error(parts[0], b.parameters, *args[1:])])
 
     held_out, kept = None, []
     if split > SPLIT_AGREEMENT:
         kept = [identify_unit(part, *args, RESTRICTED_PARAMETERS) for part in parts]
-        held_out = crossed(*kept) / max(crossed(first, second), 1e-300)
+        held_out = held_out_ratio(crossed(*kept), crossed(first, second))
     if split <= SPLIT_AGREEMENT or (held_out is not None and held_out > HELD_OUT_RATIO):
         limit = on_search_limit(whole)
         if limit:  # not determined: held at the trained unit's value, the rest fitted again
@@ -221,13 +223,30 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
             whole = identify_unit(windows, *args, free)
             if kept:  # the halves disagreed: the held-out error decides again, with the relief held
                 held = [identify_unit(part, *args, free, start=whole.parameters) for part in parts]
-                held_out = crossed(*kept) / max(crossed(*held), 1e-300)
+                held_out = held_out_ratio(crossed(*kept), crossed(*held))
             event(_log, "relief on its search limit: held at the trained unit's", logging.INFO, parameters=limit,
                   again=on_search_limit(whole), held_out=held_out)
         if ((held_out is None or held_out > HELD_OUT_RATIO) and not on_search_limit(whole)
                 and level_uncertainty(features, whole) <= UNCERTAINTY_LIMIT):
             return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out, whole)
     return SupplyChoice(kept_supply(features, windows), KEPT, split, held_out, whole)
+
+
+def held_out_ratio(kept: np.ndarray, whole: np.ndarray) -> float:
+    """How many times worse the kept supply's fits predict the other half than the whole fits' (:data:`HELD_OUT_RATIO`):
+    the geometric mean over the two directions of the ratio of their held-out valve errors (each array: the first
+    half's fit on the second half, the second's on the first, (L/min)²).
+
+    Each held-out half counts once. A duty cycle's halves can visit different operating points: a half that never
+    drove the valve where the other did extrapolates there with either supply, by 10–40 × its own error, and a sum
+    of the errors let that one direction decide alone (seed 2047, unit 17, 13 states: the first half's whole fit
+    predicted the second with 0.0077, the kept supply's with 0.0055, the second half's fits the first with 0.00020
+    and 0.00030; the sum kept the trained unit's relief, 1.41 × the unit's, and its valve_coil_warning read
+    relief_spring_warning in 40 of 40 duty-cycle windows; the ratio per direction 0.71 and 1.54, their geometric
+    mean 1.05: the whole fit, relief 1.08 × the unit's).
+    """
+    k, w = np.asarray(kept, dtype=np.float64), np.maximum(np.asarray(whole, dtype=np.float64), 1e-300)
+    return float(np.exp(np.mean(np.log(np.maximum(k, 1e-300) / w))))
 
 
 def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
