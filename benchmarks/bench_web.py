@@ -84,7 +84,8 @@ def main() -> int:
     rng = np.random.default_rng(0)
     machines = [f"m{i:04d}" for i in range(args.machines)]
     state = {m: ("healthy" if rng.random() > 0.1 else str(rng.choice(STATES[1:]))) for m in machines}
-    port, http = free_port(), free_port()
+    port = free_port()
+    http = free_port(avoid={port})
     web = subprocess.Popen([sys.executable, "-m", "services.web", "--fleet", FLEET, "--port", str(http),
                             "--bus-port", str(port)])
     url = f"http://127.0.0.1:{http}/"

@@ -119,3 +119,19 @@ def test_free_ports_lie_below_the_ephemeral_range_and_can_be_bound() -> None:
 
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", ports.pop()))
+
+
+def test_free_port_avoids_the_ports_already_chosen(monkeypatch) -> None:
+    """Two services started together get two ports: ``avoid`` skips the one already chosen even when the random pick
+    lands on it (forced here by a range of two ports), and the kernel's fallback skips it too."""
+    import hydrowatch.bus.session as S
+
+    monkeypatch.setattr(S, "BELOW_EPHEMERAL", 2)
+    low = S._ephemeral_low()
+    first = free_port()
+    assert low - 2 <= first < low
+    assert {free_port(avoid={first}) for _ in range(20)} == {low - 2, low - 1} - {first}
+    monkeypatch.setattr(S, "BELOW_EPHEMERAL", 1)
+    only = free_port()
+    fallback = free_port(avoid={only})  # the range holds only the avoided port: the kernel chooses
+    assert fallback != only and fallback > 0

@@ -69,7 +69,8 @@ def services(bundle_dir: Path) -> Iterator[tuple[int, str, list[subprocess.Popen
     """Web and scorer on a private loopback bus; the test adds plants to the list it gets."""
     from hydrowatch.bus import free_port
 
-    port, http = free_port(), free_port()
+    port = free_port()
+    http = free_port(avoid={port})
     running = [start("services.web", "--fleet", FLEET, "--port", http, "--bus-port", port),
                start("services.scorer", "--model", bundle_dir, "--fleet", FLEET, "--smoothing", 3, "--bus-port", port)]
     try:
@@ -156,7 +157,8 @@ def test_a_thousand_machines_are_all_reachable_and_filtered_on_the_server(tmp_pa
     from hydrowatch.training.messages import verdict_batch
     from hydrowatch.verdict import Verdict
 
-    port, http = free_port(), free_port()
+    port = free_port()
+    http = free_port(avoid={port})
     machines = [f"m{i:04d}" for i in range(1000)]
     truth = {m: "load_alert" if i % 50 == 7 else "healthy" for i, m in enumerate(machines)}
     truth["m0500"] = "<img src=x onerror=window.pwned=1>"  # what comes off the bus is shown, never run

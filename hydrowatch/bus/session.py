@@ -23,7 +23,7 @@ import json
 import os
 import random
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -185,8 +185,10 @@ def _ephemeral_low() -> int:
         return 32768
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port free on ``host`` right now (for a private bus in tests or ``hydrowatch up``).
+def free_port(host: str = "127.0.0.1", avoid: Collection[int] = ()) -> int:
+    """A TCP port free on ``host`` right now (for a private bus in tests or ``hydrowatch up``), none of ``avoid``
+    (ports already chosen for other services that have not bound them yet: two picks from the same range can
+    coincide, seen once as a web page and its bus handed one port, ``Address already in use``).
 
     Chosen at random among the :data:`BELOW_EPHEMERAL` ports below the kernel's ephemeral range, not by binding
     port 0: a port from that range, released here and bound by a service seconds later, can meanwhile become the
@@ -198,15 +200,20 @@ def free_port(host: str = "127.0.0.1") -> int:
     pick = random.SystemRandom()
     for _ in range(200):
         port = pick.randrange(max(1024, low - BELOW_EPHEMERAL), low)
+        if port in avoid:
+            continue
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
             try:
                 sock.bind((host, port))
             except OSError:
                 continue
             return port
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:  # every try taken: let the kernel choose
-        sock.bind((host, 0))
-        return int(sock.getsockname()[1])
+    while True:  # every try taken: let the kernel choose
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            sock.bind((host, 0))
+            port = int(sock.getsockname()[1])
+        if port not in avoid:
+            return port
 
 
 def open_session(settings: BusSettings | None = None) -> zenoh.Session:
