@@ -25,8 +25,8 @@ def side_by_side(steps: Sequence[Callable[[], T]]) -> list[T]:
     """Each step's result, in the order of ``steps``.
 
     Up to :func:`~hydrowatch.gap.align.simulation_threads` steps run at a time (one: one after the other, in
-    this thread), started in the order given, so put the longest first. The first exception a step raises
-    (in the order of ``steps``) is raised here, after every started step has ended.
+    this thread), started in the order given, so put the longest first. The error of the first step (in the order
+    of ``steps``) that raised one is raised here, once every step has run.
     """
     workers = min(simulation_threads(), len(steps))
     if workers <= 1:
