@@ -176,7 +176,6 @@ def simulate_sensors(
     if todo:
         first = list(todo.values())
         preds = _simulate_models(aligned, [params[i] for i in first], [effs[i] for i in first], stop)
-        kept.simulated += len(first)
         for k, pred in zip(todo, preds):
             kept.keep(k, pred)
         made = dict(zip(todo, preds))
@@ -198,7 +197,8 @@ def _simulate_models(aligned: AlignedRecording, params: list[PlantParameters], e
 
 
 def simulation_threads() -> int:
-    """Threads the batched simulations of the analysis share out their models to: the environment's
+    """Threads the batched simulations of the analysis share out their models to, and how many of its independent
+    steps run side by side (side_by_side.py; each of those shares its own simulations out again): the environment's
     ``HYDROWATCH_THREADS``, else min(2, CPU count) (issue 12, item 5: "under 5 minutes on 2 cores";
     the compiled kernel releases the GIL, each thread runs its own simulator on its own models, so
     the results do not depend on the count). Set ``HYDROWATCH_THREADS=1`` on a shared machine."""

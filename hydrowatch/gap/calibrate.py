@@ -18,7 +18,7 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import OptimizeResult, least_squares
 
-from hydrowatch.gap.align import AlignedRecording, simulate_sensors
+from hydrowatch.gap.align import AlignedRecording, simulate_sensors, simulation_threads
 from hydrowatch.gap.locate import noise_std
 from hydrowatch.gap.space import CALIBRATED, PRIOR_SD, ModelSpace
 from hydrowatch.log import event, get_logger
@@ -89,13 +89,23 @@ class OutputErrorFit:
 
 
 class _Objective:
-    """Normalised residuals and their batched finite-difference Jacobian, sharing simulations."""
+    """Normalised residuals and their batched finite-difference Jacobian, sharing simulations.
+
+    The solver asks for the residuals at one point at a time (its start, then each trial step) and for the Jacobian
+    at each point it accepts, whose P perturbed models share the :func:`simulation_threads` threads. A single model
+    leaves all threads but one idle, so the residuals' simulation takes some of the Jacobian's along (issue 12, item
+    5): at the start all of them (the solver always asks for the start's Jacobian next), at a trial step the P mod
+    threads perturbations that the Jacobian's batch would otherwise leave one thread alone to run (used when the
+    step is accepted; simulated for nothing when it is rejected). Every number is the same; the Jacobian takes
+    them from the fit's cache.
+    """
 
     def __init__(self, aligned: AlignedRecording, space: ModelSpace, band_hz: float | None = None) -> None:
         self.aligned, self.space = aligned, space
         self.sos = None if band_hz is None else signal.butter(2, band_hz, fs=SAMPLE_RATE_HZ, output="sos")
         self.cache: dict[bytes, np.ndarray] = {}
         self.n_sim = 0
+        self.calls = 0
 
     def _residuals(self, prediction: np.ndarray) -> np.ndarray:
         a = self.aligned
@@ -122,10 +132,13 @@ class _Objective:
 
     def fun(self, z: np.ndarray) -> np.ndarray:
         z = np.array(z, dtype=float)
-        return np.concatenate([self._residuals(self.simulate([z])[0]), self.space.prior_residuals(z)])
+        points, _ = self._perturbed(z)
+        along = len(points) - 1 if self.calls == 0 else (len(points) - 1) % simulation_threads()
+        self.calls += 1
+        return np.concatenate([self._residuals(self.simulate(points[: 1 + along])[0]), self.space.prior_residuals(z)])
 
-    def jac(self, z: np.ndarray) -> np.ndarray:
-        z = np.array(z, dtype=float)
+    def _perturbed(self, z: np.ndarray) -> tuple[list[np.ndarray], list[float]]:
+        """``z`` and its P forward-difference points (a step back where the upper bound is near), and the steps."""
         lo, hi = self.space.bounds()
         steps = []
         points = [z]
@@ -135,6 +148,11 @@ class _Objective:
             zi[i] += h
             steps.append(h)
             points.append(zi)
+        return points, steps
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        z = np.array(z, dtype=float)
+        points, steps = self._perturbed(z)
         preds = self.simulate(points)
         r0 = np.concatenate([self._residuals(preds[0]), self.space.prior_residuals(z)])
         return np.column_stack([(np.concatenate([self._residuals(p), self.space.prior_residuals(zi)]) - r0) / h

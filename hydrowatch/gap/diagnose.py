@@ -48,6 +48,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -59,6 +60,7 @@ from hydrowatch.gap.hypothesis import polish, recalibrate, settle
 from hydrowatch.gap.judge import judge
 from hydrowatch.gap.locate import whiteness
 from hydrowatch.gap.screen import Screened, screen
+from hydrowatch.gap.side_by_side import side_by_side
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
@@ -214,8 +216,9 @@ def _prune(aligned: AlignedRecording, diagnosis: Diagnosis, current: OutputError
     """
     while len(diagnosis.accepted) > 1:
         verdicts = []
-        for trial in diagnosis.accepted[:-1]:
-            without = _without(aligned, current, trial.refit.candidate.id)
+        earlier = diagnosis.accepted[:-1]
+        withouts = side_by_side([partial(_without, aligned, current, t.refit.candidate.id) for t in earlier])
+        for trial, without in zip(earlier, withouts):
             needed, j = _still_needed(aligned, without, current, trial.refit.candidate, min_gain, n_se, min_bic)
             event(log, "effect still needed", effect=trial.refit.candidate.label, needed=needed,
                   gain=round(j["gain"], 4), delta_bic=round(j["delta_bic"], 1))
@@ -242,6 +245,19 @@ def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float, cand
         return True
     shared = any(set(candidate.partners) & set(t.refit.candidate.partners) for t in passed)
     return shared or screen_gain >= CONFIRM_SHARE * lead
+
+
+def _sure_to_confirm(screened: list[Screened], confirm: int, floor: float) -> list[int]:
+    """The ranks among the first ``confirm`` screened that get their full calibration whatever the confirmations
+    before them find (:func:`_worth_confirming` holds for every outcome of theirs: a gain above ``floor`` and at least
+    CONFIRM_SHARE of the leader's, or a partner shared with every candidate ranked before): these run side by side."""
+    lead = screened[0][0] if screened else 0.0
+    sure = []
+    for rank, (gain, s, _, _) in enumerate(screened[:confirm]):
+        before = [set(e[1].candidate.partners) for e in screened[:rank]]
+        if gain > floor and (gain >= CONFIRM_SHARE * lead or all(set(s.candidate.partners) & b for b in before)):
+            sure.append(rank)
+    return sure
 
 
 def _is_confirmation(trial: Trial, current: OutputErrorFit) -> bool:
@@ -304,10 +320,16 @@ def diagnose(
         their hypothesis (:func:`_worth_confirming`) and the acceptance rules; the others keep their screening fit."""
         trials: list[Trial] = []
         lead = screened[0][0] if screened else 0.0
+
+        def full_calibration(s: Refit) -> Refit:
+            return recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp,
+                               design_start=not diagnosis.accepted)
+
+        sure = _sure_to_confirm(screened, confirm, floor) if len(screened) > 1 else []
+        ahead = dict(zip(sure, side_by_side([partial(full_calibration, screened[r][1]) for r in sure])))
         for rank, (screen_gain, s, data, base) in enumerate(screened):
             if rank < confirm and screen_gain > floor and _worth_confirming(trials, screen_gain, lead, s.candidate):
-                full = recalibrate(aligned, current, s, nominal, calibrated.parameters.Dp,
-                                   design_start=not diagnosis.accepted)
+                full = ahead[rank] if rank in ahead else full_calibration(s)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
                 ok = (j["gain"] >= min_gain and j["consistency"] > n_se and j["delta_bic"] < -min_bic
@@ -358,7 +380,7 @@ def diagnose(
             passed = [t for t in trials if t.passed]
             if not passed:
                 break
-        polished = {id(t): polish(aligned, t.refit) for t in passed}
+        polished = dict(zip(map(id, passed), side_by_side([partial(polish, aligned, t.refit) for t in passed])))
         if len(passed) > 1:
             # Rivals are compared polished: an unconverged confirmation (a backlash fit that used every
             # iteration) lost to compliance on dev population 7, and won the next round by 98 %.

@@ -3,8 +3,10 @@ diagnose.py, which gives the best-ranked a full calibration under their hypothes
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
+from typing import cast
 
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
@@ -18,6 +20,7 @@ from hydrowatch.gap.candidates import (
     refit,
     scan_magnitude,
 )
+from hydrowatch.gap.side_by_side import side_by_side
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
@@ -54,29 +57,45 @@ def screen(aligned: AlignedRecording, current: OutputErrorFit, pool: Sequence[Ca
     and ≈ 24 of the head for each other candidate, per second look).
     """
     head = aligned.head(SCREEN_SECONDS)
-    zero: dict[int, float] = {}
-    screened: list[Screened] = []
-    out = []
-    for c in pool:
-        data = aligned if c.id in SLOW_EFFECTS else head
-        base = replace(current, prediction=current.prediction[:, : data.t.size])
-        free = c.partners if plant_free is None else plant_free
+    datas = [aligned if c.id in SLOW_EFFECTS else head for c in pool]
+    bases = {d.t.size: replace(current, prediction=current.prediction[:, : d.t.size]) for d in datas}
+
+    def look(c: Candidate, data: AlignedRecording) -> tuple[Scan, Refit | None]:
+        base, free = bases[data.t.size], c.partners if plant_free is None else plant_free
         scan = scans.get(c.label) if scans is not None else None
         if scan is None:
             scan = scan_magnitude(data, base, c, origins)
-            if scans is not None:
-                scans[c.label] = scan
-        r = refit(data, base, c, plant_free=free, max_nfev=SCREEN_NFEV, require_gain=not free, scanned=scan)
+        return scan, refit(data, base, c, plant_free=free, max_nfev=SCREEN_NFEV, require_gain=not free, scanned=scan)
+
+    def alone(data: AlignedRecording) -> float:
+        """The matched zero: the gain of the current model refitted without a candidate."""
+        base = bases[data.t.size]
+        fit = fit_output_error(data, ModelSpace(base.parameters, {k: dict(v) for k, v in base.effects.items()},
+                                                plant_free or (), base.space.effect_free), max_nfev=SCREEN_NFEV)
+        return 1.0 - holdout_cost(data, fit.prediction) / holdout_cost(data, base.prediction)
+
+    # The looks and the second look's plant-alone fits (one per data length; a second look's refit never returns
+    # None, so each is used) need none of each other's results: side by side, the whole-record ones first.
+    lengths = {} if plant_free is None else {d.t.size: d for d in datas}
+    Looked = tuple[Scan, Refit | None] | float
+    steps: list[Callable[[], Looked]] = [partial(look, c, d) for c, d in zip(pool, datas)]
+    steps += [partial(alone, d) for d in lengths.values()]
+    sizes = [d.t.size for d in datas] + list(lengths)
+    first = sorted(range(len(steps)), key=lambda k: -sizes[k])
+    done = dict(zip(first, side_by_side([steps[k] for k in first])))
+    zero = {n: cast(float, done[len(pool) + k]) for k, n in enumerate(lengths)}
+    for n, gain in zero.items():
+        event(log, "second look", seconds=round(float(lengths[n].duration), 1), plant_alone_gain=round(gain, 4))
+    screened: list[Screened] = []
+    out = []
+    for k, (c, data) in enumerate(zip(pool, datas)):
+        scan, r = cast(tuple[Scan, Refit | None], done[k])
+        if scans is not None:
+            scans.setdefault(c.label, scan)
         if r is None:
             out.append(c.label)
             continue
-        j0 = holdout_cost(data, base.prediction)
-        if plant_free is not None and data.t.size not in zero:
-            alone = fit_output_error(data, ModelSpace(base.parameters, {k: dict(v) for k, v in base.effects.items()},
-                                                      plant_free, base.space.effect_free), max_nfev=SCREEN_NFEV)
-            zero[data.t.size] = 1.0 - holdout_cost(data, alone.prediction) / j0
-            event(log, "second look", seconds=round(float(data.duration), 1),
-                  plant_alone_gain=round(zero[data.t.size], 4))
-        screened.append((1.0 - r.holdout_cost / j0 - zero.get(data.t.size, 0.0), r, data, base))
+        j0 = holdout_cost(data, bases[data.t.size].prediction)
+        screened.append((1.0 - r.holdout_cost / j0 - zero.get(data.t.size, 0.0), r, data, bases[data.t.size]))
     screened.sort(key=lambda item: -item[0])
     return screened, out
