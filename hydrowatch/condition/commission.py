@@ -238,8 +238,8 @@ def held_out_ratio(kept: np.ndarray, whole: np.ndarray) -> float:
     half's fit on the second half, the second's on the first, (L/min)²).
 
     Each held-out half counts once. A duty cycle's halves can visit different operating points: a half that never
-    drove the valve where the other did extrapolates there with either supply, by 10–40 × its own error, and a sum
-    of the errors let that one direction decide alone (seed 2047, unit 17, 13 states: the first half's whole fit
+    drove the valve where the other did extrapolates there with either supply (16 and 35 × its own error below), and
+    a sum of the errors let that one direction decide alone (seed 2047, unit 17, 13 states: the first half's whole fit
     predicted the second with 0.0077, the kept supply's with 0.0055, the second half's fits the first with 0.00020
     and 0.00030; the sum kept the trained unit's relief, 1.41 × the unit's, and its valve_coil_warning read
     relief_spring_warning in 40 of 40 duty-cycle windows; the ratio per direction 0.71 and 1.54, their geometric
