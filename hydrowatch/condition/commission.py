@@ -245,8 +245,8 @@ def held_out_ratio(kept: np.ndarray, whole: np.ndarray) -> float:
     relief_spring_warning in 40 of 40 duty-cycle windows; the ratio per direction 0.71 and 1.54, their geometric
     mean 1.05: the whole fit, relief 1.08 × the unit's).
     """
-    k, w = np.asarray(kept, dtype=np.float64), np.maximum(np.asarray(whole, dtype=np.float64), 1e-300)
-    return float(np.exp(np.mean(np.log(np.maximum(k, 1e-300) / w))))
+    kept_, whole_ = (np.maximum(np.asarray(e, dtype=np.float64), 1e-300) for e in (kept, whole))
+    return float(np.exp(np.mean(np.log(kept_ / whole_))))
 
 
 def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
