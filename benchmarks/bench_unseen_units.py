@@ -41,7 +41,10 @@ import argparse
 import json
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -81,15 +84,20 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     return out
 
 
+def _count() -> list[int]:
+    """[right, total] (a module-level factory: a Tally crosses process boundaries with ``--jobs``)."""
+    return [0, 0]
+
+
 class Tally:
     """Right/total per (condition, pool) of one unit, and the probabilities of named verdicts."""
 
     def __init__(self) -> None:
-        self.right: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
+        self.right: dict[tuple[str, int], list[int]] = defaultdict(_count)
         self.calibration: dict[int, list[tuple[float, bool]]] = defaultdict(list)
-        self.unknown_known: dict[int, list[int]] = defaultdict(lambda: [0, 0])
-        self.open_set_cost: dict[int, list[int]] = defaultdict(lambda: [0, 0])
-        self.healthy: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+        self.unknown_known: dict[int, list[int]] = defaultdict(_count)
+        self.open_set_cost: dict[int, list[int]] = defaultdict(_count)
+        self.healthy: dict[int, list[int]] = defaultdict(_count)
 
     def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True,
             telling: bool = True) -> None:
@@ -220,6 +228,8 @@ def main() -> None:
     ap.add_argument("--entropy", type=int, default=0, metavar="N",
                     help="also the study's method (NARX and BJ bundles, 7 states) on the first N units")
     ap.add_argument("--json", default=None, help="write the figures here")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="units scored side by side in this many processes (figures identical to --jobs 1)")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     sets = {"7": (STUDY_STATES,), "13": (EXTENDED_STATES,), "both": (STUDY_STATES, EXTENDED_STATES),
@@ -227,25 +237,17 @@ def main() -> None:
     tallies: dict[int, list[Tally]] = {len(s): [] for s in sets}
     first: dict[int, ConditionModel] = {}
     units = []
+    for _ in range(args.units):  # the population first: each unit's work below draws nothing from rng
+        unit = random_unit(rng)
+        units.append((unit, later_day(unit, rng)))
     t0 = time.time()
     with threadpool_limits(1):
-        for i in range(args.units):
-            unit, day = random_unit(rng), None
-            day = later_day(unit, rng)
-            units.append((unit, day))
-            seed = 1000 * (i + 1) + args.seed
-            for states in sets:
-                if args.commission_only and len(states) in first:
-                    continue
-                model = train(unit, states, args.train_seconds, seed)
-                first.setdefault(len(states), model)
-                if args.commission_only:
-                    continue
-                tally = Tally()
-                evaluate(model, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
-                if len(states) == 7:
-                    open_set(model, day, args.test_seconds, seed, tally)
-                tallies[len(states)].append(tally)
+        work = [(i, unit, day, sets, args) for i, (unit, day) in enumerate(units)]
+        for i, (by_k, models) in enumerate(side_by_side(own_unit, work, args.jobs)):
+            for k, tally in by_k.items():
+                tallies[k].append(tally)
+            if i == 0:
+                first.update(models)
             print(f"unit {i + 1}/{args.units} done, {time.time() - t0:.0f} s", flush=True)
         figures = {f"{k} states": summarise(v, f"{k} states, each unit trained on its own recordings")
                    for k, v in tallies.items() if v}
@@ -260,39 +262,86 @@ def main() -> None:
             json.dump(figures, f, indent=1)
 
 
+def side_by_side(fn: Callable[..., Any], work: list[tuple[Any, ...]], jobs: int) -> Iterator[Any]:
+    """``fn(*w)`` for each ``w`` of ``work``, in order: inline with ``jobs`` 1, else in ``jobs`` processes."""
+    if jobs <= 1:
+        yield from (fn(*w) for w in work)
+        return
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        yield from pool.map(fn, *zip(*work))
+
+
+def own_unit(i: int, unit: PlantParameters, day: PlantParameters, sets: tuple[tuple[str, ...], ...],
+             args: argparse.Namespace) -> tuple[dict[int, Tally], dict[int, ConditionModel]]:
+    """Unit ``i`` trained on its own recordings and scored on its later day: a tally per state set (none with
+    ``--commission-only``), and its models when it is the first unit (the fleet model of the commissioning)."""
+    with threadpool_limits(1):
+        seed = 1000 * (i + 1) + args.seed
+        by_k: dict[int, Tally] = {}
+        models: dict[int, ConditionModel] = {}
+        for states in sets:
+            if args.commission_only and i > 0:
+                continue
+            model = train(unit, states, args.train_seconds, seed)
+            if i == 0:
+                models[len(states)] = model
+            if args.commission_only:
+                continue
+            tally = Tally()
+            evaluate(model, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
+            if len(states) == 7:
+                open_set(model, day, args.test_seconds, seed, tally)
+            by_k[len(states)] = tally
+        return by_k, models
+
+
+COMMISSIONING_RUNS: dict[str, Callable[[int], np.ndarray]] = {
+    "duty cycle 0.5-3.5 V": lambda seed: duty_cycle(300.0, (0.5, 3.5), seed=seed),
+    "filtered noise 0-4 V": lambda seed: filtered_noise(300.0, (0, 4), seed=seed)}
+"""The commissioning recordings: 300 s of each unit's healthy self on its training day."""
+
+
+def commission_unit(base: ConditionModel, states: tuple[str, ...], unit: PlantParameters, day: PlantParameters,
+                    j: int, how: str, plain: bool, args: argparse.Namespace) -> tuple[Tally, Tally | None, str]:
+    """Unit ``j`` commissioned from the fleet model ``base`` on its ``how`` recording and scored on its later day's
+    working commands (and the open set for 7 states); with ``plain`` also the fleet model alone. The outcome:
+    "refused", or the supply commissioning chose."""
+    with threadpool_limits(1):
+        seed = 50_000 + 1000 * j + args.seed
+        healthy = simulate([unit], COMMISSIONING_RUNS[how](seed + 1), seed)[0]
+        try:
+            done = commission(base, healthy)
+            model, outcome = done.model, done.supply
+        except CommissioningError as exc:  # the unit keeps the fleet model
+            print(f"unit {j + 1}: commissioning refused: {exc}")
+            model, outcome = base, "refused"
+        tallies: list[Tally] = []
+        for m in (model, base) if plain else (model,):
+            tally = Tally()
+            score_working(m, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
+            if len(states) == 7:  # the 6 faults the model never saw, on the commissioned unit: right = unknown
+                open_set(m, day, args.test_seconds, seed, tally)
+            tallies.append(tally)
+        return tallies[0], (tallies[1] if plain else None), outcome
+
+
 def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParameters, PlantParameters]],
                   sets: tuple[tuple[str, ...], ...], args: argparse.Namespace) -> dict[str, object]:
     """The first unit's models on every other unit, commissioned on its healthy duty cycle or not."""
     out: dict[str, object] = {}
-    runs = {"duty cycle 0.5-3.5 V": lambda seed: duty_cycle(300.0, (0.5, 3.5), seed=seed),
-            "filtered noise 0-4 V": lambda seed: filtered_noise(300.0, (0, 4), seed=seed)}
     for states in sets:
         base, k = first[len(states)], len(states)
-        plain: list[Tally] = []
-        for how, command in runs.items():
-            commissioned, accepted, refused, supply, whole = [], [], 0, 0, 0
-            for j, (unit, day) in enumerate(units[1:], start=1):
-                seed = 50_000 + 1000 * j + args.seed
-                healthy = simulate([unit], command(seed + 1), seed)[0]
-                try:
-                    done = commission(base, healthy)
-                    model, supply = done.model, supply + (done.supply == "identified")
-                    whole += done.supply == WHOLE_FIT
-                except CommissioningError as exc:  # the unit keeps the fleet model
-                    print(f"unit {j + 1}: commissioning refused: {exc}")
-                    model, refused = base, refused + 1
-                pairs = [(commissioned, model)] + ([(plain, base)] if len(plain) < len(units) - 1 else [])
-                for tallies_, m in pairs:
-                    tally = Tally()
-                    score_working(m, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
-                    if k == 7:  # the 6 faults the model never saw, on the commissioned unit: right = unknown
-                        open_set(m, day, args.test_seconds, seed, tally)
-                    tallies_.append(tally)
-                if model is not base:
-                    accepted.append(commissioned[-1])
-            if how == next(iter(runs)):
-                out[f"{k} states, not commissioned"] = summarise(plain, f"{k} states, first unit's model, "
-                                                                        "not commissioned")
+        for n, how in enumerate(COMMISSIONING_RUNS):
+            work = [(base, states, unit, day, j, how, n == 0, args) for j, (unit, day) in enumerate(units[1:], start=1)]
+            results = list(side_by_side(commission_unit, work, args.jobs))
+            commissioned = [r[0] for r in results]
+            accepted = [r[0] for r in results if r[2] != "refused"]
+            refused = sum(r[2] == "refused" for r in results)
+            supply = sum(r[2] == "identified" for r in results)
+            whole = sum(r[2] == WHOLE_FIT for r in results)
+            if n == 0:
+                out[f"{k} states, not commissioned"] = summarise([r[1] for r in results],
+                                                                 f"{k} states, first unit's model, not commissioned")
             out[f"{k} states, commissioned on {how}"] = summarise(
                 commissioned, f"{k} states, first unit's model, commissioned on 300 s of healthy {how}")
             if refused and accepted:  # a refused unit keeps the fleet model and is the worst unit: show the rest too

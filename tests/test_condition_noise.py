@@ -58,3 +58,32 @@ def test_the_relief_hypothesis_no_longer_pays_for_the_torque_noise(noisy_unit, s
         assert np.mean(diff) < -0.1 and np.sum(diff < 0) > diff.size / 2 and np.sum(old < 0) < diff.size / 2
     else:  # the coil still explains a weak coil: +0.381 -> +0.225
         assert np.mean(diff) > 0.1
+
+
+def test_the_noise_share_of_each_block_is_what_white_noise_on_the_load_pressure_adds() -> None:
+    """Exact for the supply line linearised along its trajectory: Monte Carlo agrees within its own spread, where the
+    relief is open and where the pump is at its limit (the line lags there, and a step of P̂L common to every
+    sample, which the line follows, reads the noise's share 35 × too small)."""
+    from hydrowatch.condition import parity
+
+    nominal = PlantParameters()
+    unit = nominal.replace(Dp=0.8 * nominal.Dp, Kq=1.5 * nominal.Kq)  # the pump at its limit in the last windows
+    w = raw_windows(unit, duty_cycle(40.0, (0.5, 4.0), seed=5), 7)
+    voltage, flow, speed, torque = (w[:, :, k] for k in range(4))
+    pl = parity.load_pressure(speed, torque, unit)
+    spool = parity.spool_position(voltage, unit)
+    zero = np.zeros(w.shape[0])
+    variance = parity.block_noise_variance(spool, pl, unit, None, zero)  # (L/min)² per Pa²
+    sigma = 0.5e5  # Pa
+    base = parity.valve_flow_prediction(spool, pl, unit, None, zero)
+    rng = np.random.default_rng(1)
+    draws = np.array([parity.block_means((parity.valve_flow_prediction(
+        spool, pl + sigma * rng.standard_normal(pl.shape), unit, None, zero) - base) * 60_000.0) for _ in range(60)])
+    monte_carlo = np.mean(draws**2, axis=0)  # (m, blocks)
+    ratio = np.mean(monte_carlo, axis=1) / np.mean(variance * sigma**2, axis=1)
+    np.testing.assert_allclose(ratio, 1.0, atol=0.1)  # per window: 60 draws of ~120 blocks
+    step = (parity.valve_flow_prediction(spool, pl + 1e4, unit, None, zero) - base) / 1e4
+    trapezoid = (0.5 + parity.BLOCK - 1) / parity.BLOCK**2  # a block mean's share of white noise's variance
+    common = np.mean(parity.block_means(step * 60_000.0) ** 2, axis=1) * sigma**2 * trapezoid
+    # measured: 0.99-1.01 with the relief open, 0.027-0.028 at the pump's limit; the kernel 0.98-1.04 in both
+    assert np.max(common / np.mean(monte_carlo, axis=1)) > 0.9 and np.min(common / np.mean(monte_carlo, axis=1)) < 0.1
