@@ -64,7 +64,7 @@ def test_the_noise_share_of_each_block_is_what_white_noise_on_the_load_pressure_
     """Exact for the supply line linearised along its trajectory: Monte Carlo agrees within its own spread, where the
     relief is open and where the pump is at its limit (the line lags there, and a step of P̂L common to every
     sample, which the line follows, reads the noise's share 35 × too small)."""
-    from hydrowatch.condition import parity
+    from hydrowatch.condition import parity, supply
 
     nominal = PlantParameters()
     unit = nominal.replace(Dp=0.8 * nominal.Dp, Kq=1.5 * nominal.Kq)  # the pump at its limit in the last windows
@@ -73,7 +73,7 @@ def test_the_noise_share_of_each_block_is_what_white_noise_on_the_load_pressure_
     pl = parity.load_pressure(speed, torque, unit)
     spool = parity.spool_position(voltage, unit)
     zero = np.zeros(w.shape[0])
-    variance = parity.block_noise_variance(spool, pl, unit, None, zero)  # (L/min)² per Pa²
+    variance = supply.block_noise_variance(spool, pl, unit, None, zero, block=parity.BLOCK)  # (L/min)² per Pa²
     sigma = 0.5e5  # Pa
     base = parity.valve_flow_prediction(spool, pl, unit, None, zero)
     rng = np.random.default_rng(1)

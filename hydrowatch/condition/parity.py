@@ -316,28 +316,6 @@ KEPT_SHARE = 0.05
 """The least share of a valve MSE kept after its noise share is taken out (:func:`without_noise`)."""
 
 
-def block_noise_variance(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
-                         severity: np.ndarray, leak: float | np.ndarray = 1.0,
-                         sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
-    """Variance that white noise of unit variance on P̂L adds to each block of :func:`valve_residual` under one
-    hypothesis, (L/min)² per Pa², shape (m, (n − 1) // BLOCK): the predicted flow follows the noise through the
-    orifice at once and through the supply pressure, which integrates it (:func:`supply.noise_variance`, exact for
-    the supply line linearised along its trajectory). The unit's identification weights its blocks by it
-    (:mod:`hydrowatch.condition.unit`); the health relation takes out the relief-open share (:func:`noise_share`).
-
-    Not the slope of the prediction to a step of P̂L common to every sample: the supply pressure follows such a step
-    and not the noise where the relief is closed (the pump at its limit, a leaking pump, a weak spring), and that
-    slope read the noise's share 5–10 × too small there; identification then preferred supply pressures far above
-    the load's, where the flow barely follows P̂L (seed 2049, unit 13, torque noise 2.9 × the default: the relief's
-    cracking pressure 2.1 × the unit's; docs/unseen-units.md).
-    """
-    m = spool.shape[0]
-    s = np.ascontiguousarray(np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (m,)))
-    g, pl_c, _, f = _kernel_inputs(pl, spool, pl, p, leak)  # the kernel never reads the flow
-    return cast(np.ndarray, supply.noise_variance(supply.HYPOTHESIS_CODES[fault], s, g, pl_c, f,
-                                                  supply.constants(p, sample_rate), BLOCK))
-
-
 def noise_share(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None, severity: np.ndarray,
                 leak: float | np.ndarray, pl_noise: np.ndarray) -> np.ndarray:
     """What white noise of σ ``pl_noise`` (m,), Pa, on P̂L adds to a hypothesis' :func:`valve_mse` where the relief
@@ -350,7 +328,7 @@ def noise_share(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: st
     mean_b (∂Q̂/∂P̂L)_b² · σ² · :data:`BLOCK_NOISE` over the relation's blocks, the slope to a step of P̂L common to
     every sample (:data:`PRESSURE_STEP`). With the relief open that is the noise's share (the supply pressure settles
     within a sample); where the pump is at its limit the line follows a step and not the noise, and the slope leaves
-    out most of the share there (:func:`block_noise_variance` has it exactly). Taking out the exact share instead was
+    out most of the share there (:func:`supply.block_noise_variance` has it exactly). Taking out the exact share was
     measured worse (2026-11-27, fresh seeds 2050 and 2051, docs/unseen-units.md): a hypothesis that puts a healthy
     window's pump at its limit (a leak) has a large share to take out there, its realisation in one window varies as
     much, and healthy windows read as that fault (13 states, healthy worst unit 100 → 93.3 %; commissioned on filtered

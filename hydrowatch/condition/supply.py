@@ -334,6 +334,28 @@ def _output_slopes(g: float, pl: float, ps: float, cvx: float, b: float, h: floa
     return c, 0.5 * c * b + d
 
 
+def block_noise_variance(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
+                         severity: np.ndarray, leak: float | np.ndarray = 1.0, block: int = 8,
+                         sample_rate: float = 200.0) -> np.ndarray:
+    """Variance that white noise of unit variance on P̂L adds to each block residual of the valve relation under one
+    hypothesis, (L/min)² per Pa², shape (m, (n − 1) // block) (:func:`noise_variance`; ``spool`` x̂, ``pl`` P̂L [Pa],
+    (m, n) each). The unit's identification weights its blocks by it (:mod:`hydrowatch.condition.unit`); the health
+    relation takes out only the relief-open share (:func:`hydrowatch.condition.parity.noise_share`).
+
+    Not the slope of the prediction to a step of P̂L common to every sample: the supply pressure follows such a step
+    and not the noise where the relief is closed (the pump at its limit, a leaking pump, a weak spring); that slope
+    read the noise's share 5–35 × too small there, and identification preferred supply pressures far above the load's,
+    where the flow barely follows P̂L (seed 2049, unit 13, torque noise 2.9 × the default: the relief's cracking
+    pressure 2.1 × the unit's; docs/unseen-units.md).
+    """
+    m = spool.shape[0]
+    s = np.ascontiguousarray(np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (m,)))
+    f = np.ascontiguousarray(np.broadcast_to(np.asarray(leak, dtype=np.float64).reshape(-1), (m,)))
+    g = np.ascontiguousarray(p.Kq * spool, dtype=np.float64)
+    return noise_variance(HYPOTHESIS_CODES[fault], s, g, np.ascontiguousarray(pl, dtype=np.float64), f,
+                          constants(p, sample_rate), block)
+
+
 def constants(p: PlantParameters, sample_rate: float) -> np.ndarray:
     """Nominal constants of the kernels, shape (8,).
 

@@ -46,7 +46,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from hydrowatch.channels import M3S_TO_LPM
-from hydrowatch.condition import parity
+from hydrowatch.condition import parity, supply
 from hydrowatch.condition.determinacy import free_parameters
 from hydrowatch.condition.estimates import LPM_TO_M3S
 from hydrowatch.condition.held import held_mask, noise_where
@@ -277,7 +277,7 @@ def _valve_relation(s: _Signals) -> Relation:
     attenuation bias of errors in variables: on a development unit's healthy duty cycle (0.5–3.5 V, torque noise
     0.43 N·m) Pc came out ×2.2 with a relief that never opens, while the same recording without torque noise gave
     the load-warning level to 0.3 %. Weighting each block by its own spread, √(σ_Q² + v·σ_PL²) (Deming
-    regression; v the block's variance per unit of P̂L's white noise, :func:`parity.block_noise_variance`, σ by
+    regression; v the block's variance per unit of P̂L's white noise, :func:`supply.block_noise_variance`, σ by
     :func:`~hydrowatch.condition.held.held_noise`), removes the preference. Until 2026-11-27 v came from the slope to a
     0.1 bar step of P̂L common to every sample, which the supply pressure follows where the relief is closed, unlike
     the noise: it read the noise 5–10 × too small there, and a unit with 2.9 × the default torque noise (seed 2049,
@@ -306,7 +306,8 @@ def _valve_relation(s: _Signals) -> Relation:
     def spread(p: PlantParameters) -> np.ndarray:
         pl, spool, _ = predicted(p)
         pl_noise = noise_where(pl, held) or 0.0
-        return np.sqrt(flow_noise**2 + parity.block_noise_variance(spool, pl, p, None, zero, s.leak) * pl_noise**2)
+        variance = supply.block_noise_variance(spool, pl, p, None, zero, s.leak, parity.BLOCK)
+        return np.sqrt(flow_noise**2 + variance * pl_noise**2)
 
     return residual, (None if flow is None else spread)
 
