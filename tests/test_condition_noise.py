@@ -64,6 +64,7 @@ def test_the_noise_share_of_each_block_is_what_white_noise_on_the_load_pressure_
     """Exact for the supply line linearised along its trajectory: Monte Carlo agrees within its own spread, where the
     relief is open and where the pump is at its limit (the line lags there, and a step of P̂L common to every
     sample, which the line follows, reads the noise's share 35 × too small)."""
+    from hydrowatch.channels import M3S_TO_LPM
     from hydrowatch.condition import parity, supply
 
     nominal = PlantParameters()
@@ -73,17 +74,16 @@ def test_the_noise_share_of_each_block_is_what_white_noise_on_the_load_pressure_
     pl = parity.load_pressure(speed, torque, unit)
     spool = parity.spool_position(voltage, unit)
     zero = np.zeros(w.shape[0])
-    variance = supply.block_noise_variance(spool, pl, unit, None, zero, block=parity.BLOCK)  # (L/min)² per Pa²
+    variance = supply.block_noise_variance(spool, pl, unit, None, zero, 1.0, parity.BLOCK)  # (L/min)² per Pa²
     sigma = 0.5e5  # Pa
     base = parity.valve_flow_prediction(spool, pl, unit, None, zero)
     rng = np.random.default_rng(1)
     draws = np.array([parity.block_means((parity.valve_flow_prediction(
-        spool, pl + sigma * rng.standard_normal(pl.shape), unit, None, zero) - base) * 60_000.0) for _ in range(60)])
+        spool, pl + sigma * rng.standard_normal(pl.shape), unit, None, zero) - base) * M3S_TO_LPM) for _ in range(60)])
     monte_carlo = np.mean(draws**2, axis=0)  # (m, blocks)
     ratio = np.mean(monte_carlo, axis=1) / np.mean(variance * sigma**2, axis=1)
     np.testing.assert_allclose(ratio, 1.0, atol=0.1)  # per window: 60 draws of ~120 blocks
     step = (parity.valve_flow_prediction(spool, pl + 1e4, unit, None, zero) - base) / 1e4
-    trapezoid = (0.5 + parity.BLOCK - 1) / parity.BLOCK**2  # a block mean's share of white noise's variance
-    common = np.mean(parity.block_means(step * 60_000.0) ** 2, axis=1) * sigma**2 * trapezoid
+    common = np.mean(parity.block_means(step * M3S_TO_LPM) ** 2, axis=1) * sigma**2 * parity.BLOCK_NOISE
     # measured: 0.99-1.01 with the relief open, 0.027-0.028 at the pump's limit; the kernel 0.98-1.04 in both
     assert np.max(common / np.mean(monte_carlo, axis=1)) > 0.9 and np.min(common / np.mean(monte_carlo, axis=1)) < 0.1

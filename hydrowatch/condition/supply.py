@@ -30,6 +30,7 @@ from numba import njit
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.plant.parameters import PlantParameters
+from hydrowatch.recording import SAMPLE_RATE_HZ
 
 HYPOTHESIS_CODES: dict[str | None, int] = {None: -1, "pump_leak": 0, "relief_spring": 1, "valve_coil": 2,
                                            "valve_leak": 3}
@@ -319,9 +320,7 @@ def noise_variance(code: int, severity: np.ndarray, g: np.ndarray, pl: np.ndarra
             if k < n:
                 ps, b_prev = nxt, b_k
                 c_out, d_out = _output_slopes(kc * g[i, k], pl[i, k], ps, cvx, b_k, h)
-        for b_ in range(nb):
-            out[i, b_] *= M3S_TO_LPM * M3S_TO_LPM
-    return out
+    return out * M3S_TO_LPM**2
 
 
 @njit(cache=True, error_model="numpy")
@@ -335,8 +334,8 @@ def _output_slopes(g: float, pl: float, ps: float, cvx: float, b: float, h: floa
 
 
 def block_noise_variance(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
-                         severity: np.ndarray, leak: float | np.ndarray = 1.0, block: int = 8,
-                         sample_rate: float = 200.0) -> np.ndarray:
+                         severity: np.ndarray, leak: float | np.ndarray, block: int,
+                         sample_rate: float = SAMPLE_RATE_HZ) -> np.ndarray:
     """Variance that white noise of unit variance on P̂L adds to each block residual of the valve relation under one
     hypothesis, (L/min)² per Pa², shape (m, (n − 1) // block) (:func:`noise_variance`; ``spool`` x̂, ``pl`` P̂L [Pa],
     (m, n) each). The unit's identification weights its blocks by it (:mod:`hydrowatch.condition.unit`); the health

@@ -83,13 +83,9 @@ flow below the pump's limit sees, unchanged); the fit with the lowest criterion 
 from the given nominal stopped in a local minimum on duty cycles: on a unit whose relief is 1.17 × the trained
 unit's (seed 2032, unit 14, 300 s of a 0.5–3.5 V duty cycle) at Pc 0.99 × with Kr 2.3 × and a criterion of 8357,
 while the fit started from the truth reached Pc 1.15 × with Kr 0.97 × and 7652 (docs/unseen-units.md). The starts
-at +0.5 and +0.75 came with the noise's exact share in the weights (:func:`_valve_relation`, 2026-11-27): over the
-duty-cycle commissioning recordings of seeds 2040, 2044, 2046 and 2048–2050 (114 units) the whole fit's relief
-more than 10 % off went from 21 units (the earlier weights, three starts) to 16 (exact weights, three starts), 9
-(+0.5) and 7 (+0.75), the largest |ln| error from 1.06 to 0.83, 0.74 and 0.17: a unit whose relief is 1.41 × the
-trained unit's (seed 2050, unit 4) reached its basin (criterion 3778) only from +0.75, the others stopped at
-9163–19823; from seed 2044's unit 10 only +0.5 and above reach it. A start at −0.5 changed no unit but one, for
-the worse (seed 2046)."""
+at +0.5 and +0.75 came with the noise's exact share in the weights (:func:`_valve_relation`, 2026-11-27): on 114
+duty-cycle commissioning recordings (tuning seeds) the relief more than 10 % off went from 16 units to 9 and 7, the
+largest |ln| error from 0.83 to 0.17 (seed 2050, unit 4: only +0.75 reaches its basin); −0.5 helped none."""
 SCREEN_TOLERANCE = 1e-3
 """Relative tolerance (ftol, xtol) to which each of several starts is fitted before the best is finished
 (:func:`_fit`); the basins along the relief's ridge differ by 5–25 % in the criterion."""
@@ -280,15 +276,14 @@ def _valve_relation(s: _Signals) -> Relation:
     regression; v the block's variance per unit of P̂L's white noise, :func:`supply.block_noise_variance`, σ by
     :func:`~hydrowatch.condition.held.held_noise`), removes the preference. Until 2026-11-27 v came from the slope to a
     0.1 bar step of P̂L common to every sample, which the supply pressure follows where the relief is closed, unlike
-    the noise: it read the noise 5–10 × too small there, and a unit with 2.9 × the default torque noise (seed 2049,
-    unit 13) came out with its relief 2.1 × high and 0.23 × as stiff, its halves agreeing. Rich excitation (filtered
-    noise over the whole range) moves P̂L far more than its noise, the bias is small there, and it has no holds to
-    measure the noise on: it is fitted unweighted, as before.
+    the noise: it read the noise's share 5–35 × too small there, and a unit with 2.9 × the default torque noise (seed
+    2049, unit 13) came out with its relief 2.1 × high and 0.23 × as stiff, its halves agreeing. Rich excitation
+    (filtered noise over the whole range) moves P̂L far more than its noise, the bias is small there, and it has no
+    holds to measure the noise on: it is fitted unweighted, as before.
     """
-    weight = float(np.sum(np.r_[0.5, np.ones(parity.BLOCK - 1), 0.5] ** 2)) / parity.BLOCK**2  # trapezoid block mean
     held = held_mask(s.voltage)
     flow = noise_where(s.flow, held)
-    flow_noise = 0.0 if flow is None else flow * M3S_TO_LPM * np.sqrt(weight)
+    flow_noise = 0.0 if flow is None else flow * M3S_TO_LPM * np.sqrt(parity.BLOCK_NOISE)
     zero = np.zeros(s.flow.shape[0])
     last: dict[str, Any] = {}
 
