@@ -183,7 +183,8 @@ def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: i
 
 
 def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
-    """Print median and worst unit per condition and pool; returns the figures."""
+    """Print median and worst unit per condition and pool; returns the figures (``worst_at``: the worst unit's
+    position in ``tallies``, for a diagnosis)."""
     conditions = list(dict.fromkeys(c for c, _ in tallies[0].right))
     print(f"\n## {title}: {len(tallies)} units, % of windows right, median / worst unit")
     print("| condition | " + " | ".join(f"pool {n}" for n in POOLS) + " |")
@@ -194,7 +195,8 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
         for n in POOLS:
             acc = np.array([100.0 * t.right[(c, n)][0] / max(t.right[(c, n)][1], 1) for t in tallies])
             cells.append(f"{np.median(acc):.1f} / {acc.min():.1f}")
-            figures[f"{c}|{n}"] = {"median": float(np.median(acc)), "worst": float(acc.min())}
+            figures[f"{c}|{n}"] = {"median": float(np.median(acc)), "worst": float(acc.min()),
+                                   "worst_at": int(np.argmin(acc))}
         print(f"| {c} | " + " | ".join(cells) + " |")
     rows: dict[str, list[str]] = defaultdict(list)
     for n in POOLS:

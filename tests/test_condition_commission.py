@@ -281,7 +281,9 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert main(["commission", "--model", str(tmp_path / "fleet"), "--data", str(tmp_path / "healthy.parquet"),
                  "--machine", "m7", "--out", str(tmp_path / "text" / "m7")]) == 0
     said = capsys.readouterr().out  # the text output says when the recording left the relief open, and what to do
-    assert ("does not determine the relief" in said) == (info["unit"]["relief_spread"] > 0.0), (said, info["unit"])
+    assert ("does not determine the relief" in said) == C.relief_open(info["unit"]["supply"],
+                                                                       info["unit"]["split_disagreement"]), said
+    assert info["unit"]["relief_spread"] == C.RELIEF_SPREAD  # every commissioned unit's load states follow the relief
     test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
                                  command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")

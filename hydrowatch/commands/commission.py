@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
+    from hydrowatch.condition.commission import relief_open
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files
     from hydrowatch.training.commissioning import commission_bundle
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.machine}: commissioned from {fleet.version} on {unit['seconds']:.0f} s "
               f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
               f"-> {args.out} ({bundle.version})")
-        if unit["supply"] != "identified" or unit.get("relief_spread", 0.0) > 0.0:
+        if relief_open(unit["supply"], unit["split_disagreement"]):
             print("  the recording does not determine the relief (its halves disagree, or its fit ended on a search "
                   "bound): the load states follow each "
                   "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "

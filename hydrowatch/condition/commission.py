@@ -121,9 +121,20 @@ WHOLE_FIT = "whole recording (its halves disagree)"
 """``Commissioning.supply`` when the trained unit's supply failed the self-check and the whole recording's fit
 passed it."""
 RELIEF_SPREAD = PRIOR.get("Pc", DEFAULT_PRIOR)
-"""Log-scale half-width of the relief on a unit whose recording's halves disagreed (:data:`SPLIT_AGREEMENT`) or whose
-supply was kept: the build spread between units (the identification's prior). Its load states then follow each
-window's relief (:mod:`hydrowatch.condition.relief`)."""
+"""Log-scale half-width of the relief on every commissioned unit: the build spread between units (the
+identification's prior). Its load states follow each window's relief (:mod:`hydrowatch.condition.relief`). Until
+2026-11-27 only where the recording's halves disagreed (:data:`SPLIT_AGREEMENT`) or the supply was kept: a duty cycle
+can leave the relief off with its halves agreeing (seed 2052, unit 8, halves 0.042 apart: Pc 0.86 × and Kr 1.8 × the
+unit's; its load alert read ``unknown`` in 28 of 40 pooled duty-cycle windows and 20 of 20 on slow noise, 100 % right
+with the relief followed), and where the relief is right the load windows' own relief agrees with it (seed 2049, 19
+units, 7 and 13 states, duty cycle and filtered noise: every figure the same; docs/unseen-units.md)."""
+
+
+def relief_open(supply: str, split: float) -> bool:
+    """Whether the recording left the relief open: its halves disagreed (:data:`SPLIT_AGREEMENT`) or the trained
+    unit's supply was kept. There a worn relief spring may read as a weak valve coil (13 states), and only a
+    recording that determines the relief (filtered noise over the command range) separates them."""
+    return supply != "identified" or split > SPLIT_AGREEMENT
 
 
 @dataclass(frozen=True)
@@ -144,8 +155,8 @@ class Commissioning:
         Whether the supply's parameters were identified, the split-half disagreement and, when the halves
         disagreed, the held-out error ratio that decided (:class:`SupplyChoice`).
     relief_spread : float
-        Log-scale half-width of the relief left undetermined (:data:`RELIEF_SPREAD` when the halves disagreed or
-        the supply was kept, else 0).
+        Log-scale half-width within which the load states follow each window's relief (:data:`RELIEF_SPREAD`;
+        0 in commissionings before 2026-11-27 whose halves agreed).
     """
 
     model: ConditionModel
@@ -340,8 +351,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     present = fault_present(features, unit)
     if present:
         raise CommissioningError(present)
-    spread = RELIEF_SPREAD if choice.split > SPLIT_AGREEMENT or supply != "identified" else 0.0
-    moved = _moved(model, unit, valid, supply, spread)
+    moved = _moved(model, unit, valid, supply, RELIEF_SPREAD)
     healthy, verdicts = _self_check(moved, valid)
     if healthy < MIN_HEALTHY and (supply == KEPT or choice.held_out is not None):
         # The halves disagreed and the chosen fit reads the unit's own healthy windows as a fault: the other choice
@@ -360,9 +370,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     if healthy < MIN_HEALTHY:
         states, counts = np.unique(verdicts[verdicts != "healthy"], return_counts=True)
         top = ", ".join(f"{s} {c / verdicts.size:.0%}" for s, c in sorted(zip(states, counts), key=lambda x: -x[1])[:3])
-        undetermined = supply == KEPT or choice.split > SPLIT_AGREEMENT  # kept, or the halves disagreed
         hint = (" The recording did not determine the unit's supply (pump, relief): record 5 minutes of filtered "
-                "noise over the command range." if undetermined else "")
+                "noise over the command range." if relief_open(supply, choice.split) else "")
         raise CommissioningError(f"the commissioned model must read its own healthy recording healthy in at least "
                                  f"{MIN_HEALTHY:.0%} of windows. Got {healthy:.0%} ({top}): a fault may already be "
                                  f"present, or the recording is not of this kind of unit.{hint}")
