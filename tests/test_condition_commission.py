@@ -358,8 +358,8 @@ def test_each_held_out_half_counts_once_in_the_supply_choice() -> None:
     """held_out_ratio: the geometric mean of the two directions' error ratios, so a half that extrapolates with either
     supply does not decide alone (seed 2047 unit 17's errors: a sum would keep the trained unit's supply)."""
     kept, whole = np.array([0.00551, 0.000303]), np.array([0.00774, 0.000197])
-    assert kept.sum() / whole.sum() < C.HELD_OUT_RATIO  # the sum: 0.73, the kept supply
     ratio = C.held_out_ratio(kept, whole)
+    assert kept.sum() / whole.sum() < 1.0 < ratio  # the sum: 0.73, the kept supply predicting better; each half once
     assert ratio == pytest.approx(np.sqrt(0.00551 / 0.00774 * 0.000303 / 0.000197), rel=1e-12)
     assert ratio > C.HELD_OUT_RATIO  # 1.05: the whole fit
     assert C.held_out_ratio(whole, kept) == pytest.approx(1.0 / ratio, rel=1e-12)
