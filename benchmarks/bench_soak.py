@@ -6,10 +6,13 @@ two recorder shards, two scorer shards, the trainer and the web service, each it
 namespaces where permitted, else loopback), run with compose.yaml's settings where they matter for memory: recorders
 close files every 1800 s and chunks every 1 s (their default), the plant keeps 30 s of history, scorers look at their
 alias every 60 s. The trainer trains on a simulated set (as benchmarks/bench_bus_router_faults.py) every
-``--retrain`` s and moves the alias: the scorers switch models during the run. Scorers keep ``--forecast-history``
-equal to the warm-up (in simulated s) so that their bounded forecast rings (46 kB per machine at the default 2 h)
-are full once the warm-up ends; everything else is as deployed. The web's timelines (360 windows per machine) fill
-for 1800 simulated s, by design; a shorter warm-up says so.
+``--retrain`` simulated s (1200 by default: every 20 min in real time, 80 min at ``--speed 0.25``) and moves the alias:
+the scorers switch models. A new model starts each machine's attribution ring and forecast history again, and they take
+300 simulated s to fill: with the trainer's period in wall-clock seconds a quarter-speed run never reached the scorers'
+steady state (2026-11-27, 1 hour at 1000 machines: their memory rose in steps within each 20-minute model).
+Scorers keep ``--forecast-history`` equal to the warm-up (in simulated s) so that their bounded forecast rings (46 kB
+per machine at the default 2 h) are full once the warm-up ends; everything else is as deployed. The web's timelines
+(360 windows per machine) fill for 1800 simulated s, by design; a shorter warm-up says so.
 
 Measured:
 
@@ -206,7 +209,8 @@ def run(args: argparse.Namespace, work: Path) -> None:
     warmup_sim = args.warmup_minutes * 60.0 * args.speed
     settings = TopologySettings(
         fleet=FLEET, machines=args.machines, states="healthy,pump_leak_warning,motor_leak_alert", speed=args.speed,
-        plant_seconds=seconds * args.speed, history=30.0, retrain=args.retrain, rotate_s=1800.0, flush_s=1.0,
+        plant_seconds=seconds * args.speed, history=30.0, retrain=args.retrain / args.speed, rotate_s=1800.0,
+        flush_s=1.0,
         follow_s=60.0, namespaces=not args.loopback, postgres=not args.sqlite,
         train_data=str(training_set(work / "train")),
         extra={f"score-{i}": ("--forecast-history", f"{warmup_sim:g}") for i in range(2)})
@@ -335,7 +339,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true",
                         help="3 minutes, samples every 2 s (with --machines 250 for 2 cores)")
     parser.add_argument("--interval", type=float, default=5.0, help="seconds between memory samples")
-    parser.add_argument("--retrain", type=float, default=1200.0, help="trainer's --every, s")
+    parser.add_argument("--retrain", type=float, default=1200.0,
+                        help="simulated s between trainings (the trainer's --every is this / --speed)")
     parser.add_argument("--flat-mb-h", type=float, default=5.0, help="memory slope below which a service is flat")
     add_topology_arguments(parser, "recordings, each service's log, memory.csv")
     args = parser.parse_args()

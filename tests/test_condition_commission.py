@@ -135,7 +135,8 @@ def test_the_held_out_error_prefers_the_units_own_parameters(units) -> None:
 def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half_better(units, models,
                                                                                    monkeypatch) -> None:
     """Filtered noise over the command range determines the supply: with the split test forced to fail, the held-out
-    error still chooses the whole fit; with an unreachable ratio, the trained unit's supply is kept."""
+    error still chooses the whole fit. The whole fits' extra parameters cost them some held-out accuracy, so a kept
+    supply predicting up to twice as well still leaves the whole fit (ratio 0.7); a better one (0.3) is kept."""
     unit, _ = units[1]
     healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
     f = models[0].features_
@@ -143,8 +144,9 @@ def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half
     choice = C.identify_for_commissioning(f, healthy)
     # measured: held-out ratio 11.4 (split 0.002)
     assert choice.supply == "identified" and choice.held_out is not None and choice.held_out > C.HELD_OUT_RATIO
-    monkeypatch.setattr(C, "HELD_OUT_RATIO", np.inf)
-    assert C.identify_for_commissioning(f, healthy).supply == C.KEPT
+    for ratio, supply in ((0.7, "identified"), (0.3, C.KEPT)):
+        monkeypatch.setattr(C, "held_out_ratio", lambda kept, whole, r=ratio: r)
+        assert C.identify_for_commissioning(f, healthy).supply == supply, ratio
 
 
 def test_a_refusal_after_halves_that_disagree_says_what_to_record(models, duty_healthy, duty_fit, monkeypatch) -> None:
