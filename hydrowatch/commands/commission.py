@@ -66,8 +66,7 @@ def run(args: argparse.Namespace) -> int:
               f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
               f"-> {args.out} ({bundle.version})")
         if relief_open(unit["supply"], unit["split_disagreement"]):
-            print("  the recording does not determine the relief (its halves disagree, or its fit ended on a search "
-                  "bound): the load states follow each "
+            print("  the recording does not determine the relief (its halves disagree): the load states follow each "
                   "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "
                   "tell them apart, commission on 5 minutes of filtered noise over the command range (the "
                   "identification command of `hydrowatch simulate`)")
