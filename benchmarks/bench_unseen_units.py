@@ -18,11 +18,10 @@ study) and tested on a **later day** (``later_day``: leakages, load and damping 
   alone got right and the open set turned ``unknown`` (the issue's "costing known states ≤ 1
   point"), and ``healthy read healthy``, both over the conditions with the temperature channel.
 
-``commissioned`` (with ``--commission``, or ``--commission-only``): the 7- and 13-state models of the
-*first* unit of the population are commissioned on each other unit's healthy duty cycle (300 s, its
-training day), and again on 300 s of its healthy filtered noise 0–4 V (an identification run),
-then score that unit's later day on working commands (duty cycle and slow noise) and, for 7 states, the open set;
-the same without commissioning is printed beside it.
+``commissioned`` (with ``--commission``, or ``--commission-only``): the 7- and 13-state models of the *first* unit
+of the population are commissioned on each other unit's healthy duty cycle (300 s, its training day), and again on
+300 s of its healthy filtered noise 0–4 V, then score that unit's later day on working commands (duty cycle and slow
+noise) and, for 7 states, the open set; the same without commissioning is printed beside it.
 
 Accuracy = share of windows whose verdict is the true state (``unknown``, ``invalid`` count as
 wrong). Per window (pool 1) and pooled over each machine's last 3, 6, 12 valid windows (all
@@ -183,8 +182,7 @@ def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: i
 
 
 def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
-    """Print median and worst unit per condition and pool; returns the figures (``worst_at``: the worst unit's
-    position in ``tallies``, for a diagnosis)."""
+    """Print median and worst unit per condition and pool; returns the figures (``worst_at``: its place in tallies)."""
     conditions = list(dict.fromkeys(c for c, _ in tallies[0].right))
     print(f"\n## {title}: {len(tallies)} units, % of windows right, median / worst unit")
     print("| condition | " + " | ".join(f"pool {n}" for n in POOLS) + " |")

@@ -88,22 +88,13 @@ filtered noise 0–4 V, 0.001–0.042 (8 of 8 units; commissioned, 100 % right f
 duty cycles, 0.008–1.0 (13 of 16 above 0.15)."""
 HELD_OUT_RATIO = 0.5
 """When the halves disagree, the whole fit is still used if the kept supply's 2-fold held-out valve error is more
-than this many times the whole fits' (:func:`held_out_ratio`, the geometric mean over the two directions since the
-night of 2026-11-26; the sum of the two until then): the choice that predicts the other half better. Until
-2026-11-26 it was 2 (chosen on seed 2030 among 1, 2, 3 and 5), because a single start of the fit
-stopped in local minima along the relief's ridge (three of seed 2030's whole fits had the relief 8–20 % low) and
-the halves' fits in worse ones (seed 2032, unit 8: one half's fit predicted the other with 70 × the error of the
-whole fit). With the fits started along the ridge (:data:`~hydrowatch.condition.unit.RIDGE_STARTS`) and each half
-also from the whole fit, that unit's ratio was 1.93 and its whole fit right (relief 1.20 × against a true 1.16 ×);
-at 2 the kept supply read its load alert ``unknown`` (86.4 % right pooled), at 1 it read 100 %; on seed 2032's 19
-duty cycles the worst commissioned unit went from 82.5 to 92.9 % and the unit refused before was commissioned
-(docs/unseen-units.md). 1 → 0.5 on 2026-11-27: the whole fits have five more parameters to fit a half with, so they
-predict the other half worse than they deserve, and where the ratio lay between 0.5 and 1 the whole fit had the relief
-and the trained unit's was off (tuning seed 2049, units 7 and 15: Pc 1.03 × and 0.97 × the unit's against the kept
-1.15 × and 0.82 ×; seed 2037, units 16 and 19 at 0.53 and 0.86, the same; 2033 unit 17 at 0.98), below 0.5 the trained
-unit's (2048 unit 4 at 0.22, 2044 unit 9 at 0.33, 2032 unit 4 at 0.41). On 2049 the 13-state duty-commissioned worst
-unit went from 84.2 to 94.6 % right (duty cycle, pooled), nothing else moved but the 7-state open set's worst unit
-(50.8 → 69.2 %)."""
+than this many times the whole fits' (:func:`held_out_ratio`): the whole fits have five more parameters to fit a half
+with, so they predict the other half worse than their supply deserves. Where the ratio lay between 0.5 and 1 the
+whole fit had the relief and the trained unit's was off (tuning seed 2049, units 7 and 15: Pc 1.03 × and 0.97 × the
+unit's against the kept 1.15 × and 0.82 ×; seed 2037, units 16 and 19; 2033 unit 17), below 0.5 the trained unit's
+(2048 unit 4 at 0.22, 2044 unit 9 at 0.33, 2032 unit 4 at 0.41). 2 until 2026-11-26 (one start of the fit stopped
+in local minima of the relief's ridge), then 1, 0.5 since 2026-11-27 (2049's 13-state duty-commissioned worst unit
+84.2 → 94.6 % right; the history in docs/unseen-units.md)."""
 CAPACITY_MARGIN = 0.05
 """A pump the recording never drove to its limit (Dp left to its prior) is given at most this much more capacity
 than the recording drew from it (:func:`pump_capacity`). Set once, not tuned: no other value was tried."""
@@ -357,7 +348,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
     present = fault_present(features, unit)
     if present:
         raise CommissioningError(present)
-    moved = _moved(model, unit, valid, supply, RELIEF_SPREAD)
+    moved = _moved(model, unit, valid, supply)
     healthy, verdicts = _self_check(moved, valid)
     if healthy < MIN_HEALTHY and (supply == KEPT or choice.held_out is not None):
         # The halves disagreed and the chosen fit reads the unit's own healthy windows as a fault: the other choice
@@ -369,7 +360,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
         other_fit, other_supply = ((pump_capacity(features, whole, valid), WHOLE_FIT) if supply == KEPT
                                    else (kept_supply(features, valid), KEPT))
         if fault_present(features, other_fit) is None:
-            other = _moved(model, other_fit, valid, other_supply, RELIEF_SPREAD)
+            other = _moved(model, other_fit, valid, other_supply)
             share, other_verdicts = _self_check(other, valid)
             if share >= MIN_HEALTHY:
                 unit, supply, moved, healthy, verdicts = other_fit, other_supply, other, share, other_verdicts
@@ -388,9 +379,9 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
 
 
 def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str,
-           relief_spread: float = 0.0) -> ConditionModel:
+           relief_spread: float = RELIEF_SPREAD) -> ConditionModel:
     """The fleet model moved to ``unit``: its boxes, levels and floors (the load states following each window's
-    relief when ``relief_spread`` > 0); decision and open-set rule shared."""
+    relief within ``relief_spread``; 0: the commissioned relief); decision and open-set rule shared."""
     moved = ConditionModel(pooled_excess=model.pooled_excess_)
     moved.pooled_excess_ = model.pooled_excess_
     moved.features_ = model.features_.for_unit(unit, windows, BAND_WIDENING, relief_spread)

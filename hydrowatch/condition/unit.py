@@ -275,11 +275,9 @@ def _valve_relation(s: _Signals) -> Relation:
     the load-warning level to 0.3 %. Weighting each block by its own spread, √(σ_Q² + v·σ_PL²) (Deming
     regression; v the block's variance per unit of P̂L's white noise, :func:`supply.block_noise_variance`, σ by
     :func:`~hydrowatch.condition.held.held_noise`), removes the preference. Until 2026-11-27 v came from the slope to a
-    0.1 bar step of P̂L common to every sample, which the supply pressure follows where the relief is closed, unlike
-    the noise: it read the noise's share 5–35 × too small there, and a unit with 2.9 × the default torque noise (seed
-    2049, unit 13) came out with its relief 2.1 × high and 0.23 × as stiff, its halves agreeing. Rich excitation
-    (filtered noise over the whole range) moves P̂L far more than its noise, the bias is small there, and it has no
-    holds to measure the noise on: it is fitted unweighted, as before.
+    0.1 bar step of P̂L, which the supply pressure follows where the relief is closed, unlike the noise (seed 2049,
+    unit 13: the relief fitted 2.1 × high). Filtered noise over the whole range moves P̂L far more than its noise and
+    has no holds to measure the noise on: it is fitted unweighted.
     """
     held = held_mask(s.voltage)
     flow = noise_where(s.flow, held)
