@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import time
 import numpy as np
 
 from hydrowatch.bus import BusSettings, StatusReporter, Subscriber, alive, free_port, key_expr, open_session
+from hydrowatch.bus.quarantine import Quarantine
 from hydrowatch.io.codec import arrays_from_sensor_chunk
 
 PUBLISHER = textwrap.dedent("""
@@ -52,13 +54,14 @@ class _Count(logging.Handler):
         self.records.append(record)
 
 
-def test_undecodable_messages_are_counted_logged_once_and_skipped() -> None:
+def test_undecodable_messages_are_counted_logged_once_skipped_and_the_first_kept(tmp_path) -> None:
     port = free_port()
     counter = _Count()
     logger = logging.getLogger("hydrowatch.bus.pubsub")
     logger.addHandler(counter)
     try:
-        with open_session(BusSettings(port=port)) as session, Subscriber(session, key_expr("t1")) as sub:
+        with open_session(BusSettings(port=port)) as session, \
+                Subscriber(session, key_expr("t1"), quarantine=Quarantine(tmp_path / "q", limit=4)) as sub:
             proc = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(port)])
             try:
                 messages = []
@@ -85,6 +88,11 @@ def test_undecodable_messages_are_counted_logged_once_and_skipped() -> None:
     logged = sorted(r.fields["key"] for r in counter.records)  # type: ignore[attr-defined]
     assert logged == ["hydro/t1/garbage/sensors", "hydro/t1/other/sensors", "hydro/t1/v2/sensors"]
     assert all(m.receive_time_ns >= m.publish_time_ns > 0 for m in messages)
+    kept = [json.loads(line) for line in (tmp_path / "q" / "rejected.jsonl").read_text().splitlines()]
+    assert len(kept) == 4 and sub.quarantine.kept == 4  # the limit, of 5 rejected
+    garbage = [k for k in kept if k["key"] == "hydro/t1/garbage/sensors"]
+    assert [(tmp_path / "q" / k["file"]).read_bytes() for k in garbage] == [b"not arrow at all" * i for i in (10, 11)]
+    assert all(k["reason"] and k["published_ns"] > 0 and k["bytes"] > 0 for k in kept)
 
 
 def test_status_reporter_liveliness_and_heartbeat() -> None:

@@ -4,7 +4,8 @@ Every payload is one Arrow IPC message made by :func:`hydrowatch.io.encode_batch
 metadata carries the schema name and version); the attachment holds the publish wall-clock time
 (int64 little-endian, ns since the Unix epoch) so receivers can measure latency. A subscriber
 that gets a payload it cannot decode, or one of another schema or version, counts it, logs it
-once per key and goes on (contract, "Bus").
+once per key and goes on (contract, "Bus"); with ``HYDROWATCH_QUARANTINE`` set it also keeps the first rejected
+payloads byte for byte (:mod:`hydrowatch.bus.quarantine`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import zenoh
 
 from hydrowatch.bus.channel import WakingChannel
 from hydrowatch.bus.keys import Key, parse_key
+from hydrowatch.bus.quarantine import Quarantine
 from hydrowatch.bus.shard import Shard
 from hydrowatch.bus.takeover import ShardTakeover
 from hydrowatch.errors import DataError
@@ -216,6 +218,8 @@ class Subscriber:
         when shards come and go); the others are counted in ``outside_shard``.
     capacity : int
         Messages each key expression's channel holds before the zenoh thread waits.
+    quarantine : Quarantine or None
+        Where rejected payloads are kept (default: :meth:`Quarantine.from_env`, none unless set).
     """
 
     def __init__(
@@ -226,8 +230,10 @@ class Subscriber:
         *,
         shard: Shard | ShardTakeover | None = None,
         capacity: int = 100_000,
+        quarantine: Quarantine | None = None,
     ) -> None:
         self.schema = schema
+        self.quarantine = quarantine if quarantine is not None else Quarantine.from_env()
         self.shard: Shard | ShardTakeover = shard or Shard()
         self.key_exprs = [key_exprs] if isinstance(key_exprs, str) else list(key_exprs)
         self.received = 0
@@ -268,6 +274,8 @@ class Subscriber:
             self.undecodable[key] += 1
             if self.undecodable[key] == 1:
                 event(log, "undecodable message skipped", logging.WARNING, key=key, reason=exc)
+            if self.quarantine is not None:
+                self.quarantine.keep(key, payload, str(exc), received, published)
             return None
 
     def recv(self, timeout: float | None = None) -> Message | None:
