@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
-    from hydrowatch.condition.commission import relief_open
+    from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files
     from hydrowatch.training.commissioning import commission_bundle
@@ -74,9 +74,9 @@ def run(args: argparse.Namespace) -> int:
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
             if "Dp" in unit["left_to_prior"]:
-                print("  the pump was never at its limit: its capacity is taken as at most 1.05 x what the "
-                      "recording drew from it; for pump_leak levels at higher demand add a few seconds of steps to "
-                      "the top of the command range")
+                print(f"  the pump was never at its limit: its capacity is taken as at most "
+                      f"{1 + CAPACITY_MARGIN:.2f} x what the recording drew from it; for pump_leak levels at higher "
+                      "demand add a few seconds of steps to the top of the command range")
             if "omega_s" in unit["left_to_prior"]:
                 print("  the recording never came near standstill: the brake's low-speed shape (omega_s) is the "
                       "trained unit's; a few seconds of commands near 0 V would identify it")
