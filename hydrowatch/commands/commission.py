@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
             if "Dp" in unit["left_to_prior"]:
-                print(f"  the pump was never at its limit: its capacity is taken as at most "
+                print("  the pump was never at its limit: its capacity is taken as at most "
                       f"{1 + CAPACITY_MARGIN:.2f} x what the recording drew from it; for pump_leak levels at higher "
                       "demand add a few seconds of steps to the top of the command range")
             if "omega_s" in unit["left_to_prior"]:
