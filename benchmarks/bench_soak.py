@@ -251,9 +251,9 @@ def run(args: argparse.Namespace, work: Path) -> None:
 def rotation_peaks(t: np.ndarray, rss: np.ndarray, began: float, ended: float) -> list[float]:
     """Peak RSS, MB, in each whole :data:`ROTATE_S` period from the plant's start: a recorder's memory grows with the
     open file's chunk index and falls when it closes the file, so its bound is the peak per file, not a slope."""
-    periods = int((ended - began) // ROTATE_S)
-    return [float(rss[(t >= began + k * ROTATE_S) & (t < began + (k + 1) * ROTATE_S)].max()) / 1e6
-            for k in range(periods) if ((t >= began + k * ROTATE_S) & (t < began + (k + 1) * ROTATE_S)).any()]
+    period = np.floor((t - began) / ROTATE_S)
+    whole = (t >= began) & (period < int((ended - began) // ROTATE_S))
+    return [float(rss[whole & (period == k)].max()) / 1e6 for k in np.unique(period[whole])]
 
 
 def memory_table(args: argparse.Namespace, usage: UsageSampler, began: float, ended: float) -> None:

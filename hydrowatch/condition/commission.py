@@ -97,10 +97,9 @@ in local minima of the relief's ridge), then 1, 0.5 since 2026-11-27 (2049's 13-
 84.2 → 94.6 % right; the history in docs/unseen-units.md)."""
 CAPACITY_MARGIN = 0.15
 """A pump the recording never drove to its limit (Dp left to its prior) is given at most this much more capacity
-than the recording drew from it (:func:`pump_capacity`). 0.05 until 2026-11-27, which capped a unit whose duty cycle
-drew 0.865 × its capacity at 0.909 × (seed 2054, unit 6: valve-side faults read as the coil, 89.4 % right, 98.5 with
-no cap); 0.15: that seed's worst 13-state duty-commissioned unit 93.1, fresh 2055 no pooled accuracy worse
-(docs/unseen-units.md)."""
+than the recording drew from it (:func:`pump_capacity`). 0.05 until 2026-11-27: seed 2054's unit 6, whose duty cycle
+drew 0.865 × its capacity, read valve-side faults as the coil (89.4 % right, 98.5 uncapped, 93.1 at 0.15); fresh
+2055 no pooled accuracy worse (docs/unseen-units.md)."""
 KEPT = "kept from the trained unit"
 """``Commissioning.supply`` when the recording does not determine the supply (:func:`identify_for_commissioning`)."""
 UNCERTAINTY_LIMIT = 0.3

@@ -328,8 +328,7 @@ def noise_share(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: st
     mean_b (∂Q̂/∂P̂L)_b² · σ² · :data:`BLOCK_NOISE` over the relation's blocks, the slope to a step of P̂L common to
     every sample (:data:`PRESSURE_STEP`). With the relief open that is the noise's share (the supply pressure settles
     within a sample); where the pump is at its limit the line follows a step and not the noise, and the slope leaves
-    out most of the share there (:func:`supply.block_noise_variance` has it exactly, and read healthy windows as a
-    leak that puts the pump at its limit: 2026-11-27, docs/unseen-units.md).
+    out most of the share there (exact in :func:`supply.block_noise_variance`, which read healthy windows as a leak).
     """
     m = spool.shape[0]
     s = np.broadcast_to(np.asarray(severity, dtype=np.float64).reshape(-1), (m,))
