@@ -361,10 +361,10 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
 
 
 def valve_error(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
-                viscosity_coefficient: float = 0.04) -> float:
-    """Mean squared block residual of the valve relation (Eqs. 1–5) at parameters ``p`` on raw healthy windows,
-    (L/min)²: how well a unit fit explains windows it was not fitted to (held-out error, commissioning's choice
-    of supply, :func:`hydrowatch.condition.commission.identify_for_commissioning`).
+                viscosity_coefficient: float = 0.04) -> np.ndarray:
+    """Mean squared block residual of the valve relation (Eqs. 1–5) at parameters ``p`` on each valid raw healthy
+    window, (L/min)², shape (windows,): how well a unit fit explains windows it was not fitted to (held-out error,
+    commissioning's choice of supply, :func:`hydrowatch.condition.commission.identify_for_commissioning`).
 
     Raises
     ------
@@ -375,7 +375,7 @@ def valve_error(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] 
     if missing:
         raise DataError(f"the valve relation needs flow, speed and torque. Missing: {', '.join(sorted(missing))}.")
     residual, _ = _valve_relation(_valid_signals(windows, sensors, viscosity_coefficient, "a held-out error"))
-    return float(np.mean(residual(p) ** 2))
+    return np.asarray(np.mean(residual(p) ** 2, axis=1), dtype=np.float64)
 
 
 DRAWN_QUANTILE = 0.995
