@@ -21,7 +21,8 @@ study) and tested on a **later day** (``later_day``: leakages, load and damping 
 ``commissioned`` (with ``--commission``, or ``--commission-only``): the 7- and 13-state models of the *first* unit
 of the population are commissioned on each other unit's healthy duty cycle (300 s, its training day), and again on
 300 s of its healthy filtered noise 0–4 V, then score that unit's later day on working commands (duty cycle and slow
-noise) and, for 7 states, the open set; the same without commissioning is printed beside it.
+noise) and, for 7 states, the open set; the same without commissioning is printed beside it, and each unit's own
+model on the same recordings (``unseen_commissioning.py``).
 
 Accuracy = share of windows whose verdict is the true state (``unknown``, ``invalid`` count as
 wrong). Per window (pool 1) and pooled over each machine's last 3, 6, 12 valid windows (all
@@ -49,7 +50,6 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
-from hydrowatch.condition.commission import WHOLE_FIT, CommissioningError, commission
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
@@ -252,6 +252,8 @@ def main() -> None:
         figures = {f"{k} states": summarise(v, f"{k} states, each unit trained on its own recordings")
                    for k, v in tallies.items() if v}
         if args.commission or args.commission_only:
+            from unseen_commissioning import commissioning  # it imports this module's pieces
+
             figures.update(commissioning(first, units, sets, args))
         if args.entropy:
             figures.update(study_method(units[: args.entropy], args))
@@ -293,65 +295,6 @@ def own_unit(i: int, unit: PlantParameters, day: PlantParameters, sets: tuple[tu
                 open_set(model, day, args.test_seconds, seed, tally)
             by_k[len(states)] = tally
         return by_k, models
-
-
-COMMISSIONING_RUNS: dict[str, Callable[[int], np.ndarray]] = {
-    "duty cycle 0.5-3.5 V": lambda seed: duty_cycle(300.0, (0.5, 3.5), seed=seed),
-    "filtered noise 0-4 V": lambda seed: filtered_noise(300.0, (0, 4), seed=seed)}
-"""The commissioning recordings: 300 s of each unit's healthy self on its training day."""
-
-
-def commission_unit(base: ConditionModel, states: tuple[str, ...], unit: PlantParameters, day: PlantParameters,
-                    j: int, how: str, plain: bool, args: argparse.Namespace) -> tuple[Tally, Tally | None, str]:
-    """Unit ``j`` commissioned from the fleet model ``base`` on its ``how`` recording and scored on its later day's
-    working commands (and the open set for 7 states); with ``plain`` also the fleet model alone. The outcome:
-    "refused", or the supply commissioning chose."""
-    with threadpool_limits(1):
-        seed = 50_000 + 1000 * j + args.seed
-        healthy = simulate([unit], COMMISSIONING_RUNS[how](seed + 1), seed)[0]
-        try:
-            done = commission(base, healthy)
-            model, outcome = done.model, done.supply
-        except CommissioningError as exc:  # the unit keeps the fleet model
-            print(f"unit {j + 1}: commissioning refused: {exc}")
-            model, outcome = base, "refused"
-        tallies: list[Tally] = []
-        for m in (model, base) if plain else (model,):
-            tally = Tally()
-            score_working(m, day, states, np.random.default_rng(seed), args.test_seconds, seed, tally)
-            if len(states) == 7:  # the 6 faults the model never saw, on the commissioned unit: right = unknown
-                open_set(m, day, args.test_seconds, seed, tally)
-            tallies.append(tally)
-        return tallies[0], (tallies[1] if plain else None), outcome
-
-
-def commissioning(first: dict[int, ConditionModel], units: list[tuple[PlantParameters, PlantParameters]],
-                  sets: tuple[tuple[str, ...], ...], args: argparse.Namespace) -> dict[str, object]:
-    """The first unit's models on every other unit, commissioned on its healthy duty cycle or not."""
-    out: dict[str, object] = {}
-    for states in sets:
-        base, k = first[len(states)], len(states)
-        for n, how in enumerate(COMMISSIONING_RUNS):
-            work = [(base, states, unit, day, j, how, n == 0, args) for j, (unit, day) in enumerate(units[1:], start=1)]
-            results = list(side_by_side(commission_unit, work, args.jobs))
-            commissioned = [r[0] for r in results]
-            accepted = [r[0] for r in results if r[2] != "refused"]
-            refused = sum(r[2] == "refused" for r in results)
-            supply = sum(r[2] == "identified" for r in results)
-            whole = sum(r[2] == WHOLE_FIT for r in results)
-            if n == 0:
-                out[f"{k} states, not commissioned"] = summarise([r[1] for r in results],
-                                                                 f"{k} states, first unit's model, not commissioned")
-            out[f"{k} states, commissioned on {how}"] = summarise(
-                commissioned, f"{k} states, first unit's model, commissioned on 300 s of healthy {how}")
-            if refused and accepted:  # a refused unit keeps the fleet model and is the worst unit: show the rest too
-                out[f"{k} states, commissioned on {how}, the commissioned units"] = summarise(
-                    accepted, f"{k} states, commissioned on {how}, the {len(accepted)} units commissioned")
-            out[f"{k} states, commissioned on {how}, refused"] = refused
-            out[f"{k} states, commissioned on {how}, whole-recording fit"] = whole
-            print(f"commissioning on {how}: refused on {refused} of {len(units) - 1} healthy units, supply "
-                  f"identified on {supply}, the whole recording's fit (halves disagree) kept on {whole}")
-    return out
 
 
 def study_method(units: list[tuple[PlantParameters, PlantParameters]], args: argparse.Namespace,
