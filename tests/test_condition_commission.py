@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import hydrowatch.condition.commission as C
+import hydrowatch.condition.holdout as H
 from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
@@ -137,18 +138,18 @@ def test_the_held_out_error_prefers_the_units_own_parameters(units) -> None:
 def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half_better(units, models,
                                                                                    monkeypatch) -> None:
     """Filtered noise over the command range determines the supply: with the split test forced to fail, the held-out
-    error still chooses the whole fit. The whole fits' extra parameters cost them some held-out accuracy, so a kept
-    supply predicting a little better still leaves the whole fit (ratio 0.95); a clearly better one (0.8) is kept."""
+    error still chooses the whole fit; the trained unit's supply only where it predicts clearly better
+    (:func:`holdout.keeps_supply`)."""
     unit, _ = units[1]
     healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
     f = models[0].features_
     monkeypatch.setattr(C, "SPLIT_AGREEMENT", -1.0)
     choice = C.identify_for_commissioning(f, healthy)
     # measured: held-out ratio 11.4 (split 0.002)
-    assert choice.supply == "identified" and choice.held_out is not None and choice.held_out > C.HELD_OUT_RATIO
-    for ratio, supply in ((0.95, "identified"), (0.8, C.KEPT)):
-        monkeypatch.setattr(C, "held_out_ratio", lambda kept, whole, r=ratio: r)
-        assert C.identify_for_commissioning(f, healthy).supply == supply, ratio
+    assert choice.supply == "identified" and choice.held_out is not None and choice.held_out > H.HELD_OUT_RATIO
+    for keep, supply in ((False, "identified"), (True, C.KEPT)):
+        monkeypatch.setattr(C, "keeps_supply", lambda kept, whole, k=keep: k)
+        assert C.identify_for_commissioning(f, healthy).supply == supply, keep
 
 
 def test_a_refusal_after_halves_that_disagree_says_what_to_record(models, duty_healthy, duty_fit, monkeypatch) -> None:
@@ -363,18 +364,34 @@ def test_each_held_out_window_and_half_counts_once_in_the_supply_choice() -> Non
     so neither a few windows where a half extrapolates nor one direction decides alone."""
     kept = [np.full(30, 0.00551), np.full(30, 0.000303)]  # seed 2047 unit 17's errors, as if equal in every window
     whole = [np.full(30, 0.00774), np.full(30, 0.000197)]
-    ratio = C.held_out_ratio(kept, whole)
+    ratio = H.held_out_ratio(kept, whole)
     assert ratio == pytest.approx(np.sqrt(0.00551 / 0.00774 * 0.000303 / 0.000197), rel=1e-12)  # 1.05: whole fit
-    assert sum(k.sum() for k in kept) / sum(w.sum() for w in whole) < 1.0 < ratio and ratio > C.HELD_OUT_RATIO
-    assert C.held_out_ratio(whole, kept) == pytest.approx(1.0 / ratio, rel=1e-12)
+    assert sum(k.sum() for k in kept) / sum(w.sum() for w in whole) < 1.0 < ratio and not H.keeps_supply(kept, whole)
+    assert H.held_out_ratio(whole, kept) == pytest.approx(1.0 / ratio, rel=1e-12)
     # 2055 unit 15's pattern: the whole fits predict 4 of 30 windows 100 × worse, the others 1.4 × better
-    rng = np.random.default_rng(3)
-    base = rng.uniform(1e-4, 1e-3, (2, 30))
+    base = np.random.default_rng(3).uniform(1e-4, 1e-3, (2, 30))
     whole = [base[0] * np.where(np.arange(30) < 4, 100.0, 1 / 1.4), base[1] / 1.4]
     kept = [base[0], base[1]]
     mean_ratio = np.exp(np.mean([np.log(k.mean() / w.mean()) for k, w in zip(kept, whole)]))
     assert mean_ratio < 0.5  # the ratio of mean errors: the trained unit's supply kept
-    assert C.held_out_ratio(kept, whole) > C.HELD_OUT_RATIO  # per window: the whole fit
-    assert C.held_out_ratio([np.ones(3)], [np.array([0.0, 1.0, 1.0])]) > 1e30  # a perfect fit is not a division by 0
+    assert H.held_out_ratio(kept, whole) > H.HELD_OUT_RATIO and not H.keeps_supply(kept, whole)  # per window: whole
+    assert H.held_out_ratio([np.ones(3)], [np.array([0.0, 1.0, 1.0])]) > 1e30  # a perfect fit is not a division by 0
     with pytest.raises(ValueError, match="same windows"):
-        C.held_out_ratio([np.ones(3)], [np.ones(4)])
+        H.held_out_ratio([np.ones(3)], [np.ones(4)])
+
+
+def test_the_trained_supply_is_kept_only_where_it_predicts_the_held_out_windows_clearly_better() -> None:
+    """keeps_supply: the ratio below HELD_OUT_RATIO and its 95 % upper bound below 1. The same ratio (0.8) from
+    windows that agree keeps the trained unit's supply; from windows that scatter (2058 unit 17's pattern: one
+    direction's log ratios −0.64 ± 1.54, the other's +0.34 ± 0.23) it does not."""
+    rng = np.random.default_rng(5)
+    whole = [rng.uniform(1e-4, 1e-3, 30), rng.uniform(1e-4, 1e-3, 30)]
+    steady = [w * 0.8 * np.exp(rng.normal(0, 0.05, 30)) for w in whole]
+    assert H.held_out_ratio(steady, whole) == pytest.approx(0.8, rel=0.05)
+    assert H.held_out_upper(steady, whole) < 0.9 and H.keeps_supply(steady, whole)
+    scatter = [whole[0] * np.exp(rng.normal(-0.64, 1.54, 30)), whole[1] * np.exp(rng.normal(0.34, 0.23, 30))]
+    assert H.held_out_upper(scatter, whole) > 1.0 and not H.keeps_supply(scatter, whole)
+    d = [np.log(k / w) for k, w in zip(scatter, whole)]  # the bound by hand: mean of the directions + 1.96 se
+    se = np.sqrt(d[0].var(ddof=1) / 30 + d[1].var(ddof=1) / 30) / 2
+    assert H.held_out_upper(scatter, whole) == pytest.approx(np.exp((d[0].mean() + d[1].mean()) / 2 + 1.96 * se))
+    assert not H.keeps_supply([w * 0.95 for w in whole], whole)  # steady but not below HELD_OUT_RATIO

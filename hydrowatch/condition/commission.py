@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -46,6 +45,7 @@ import numpy as np
 
 from hydrowatch.condition import layout as L
 from hydrowatch.condition.features import ConditionFeatures
+from hydrowatch.condition.holdout import held_out_ratio, keeps_supply
 from hydrowatch.condition.informed import left_to_prior as left_to_prior  # the public name stays here
 from hydrowatch.condition.informed import level_uncertainty, levels
 from hydrowatch.condition.model import ConditionModel
@@ -87,13 +87,6 @@ SPLIT_AGREEMENT = 0.1
 every parameter is identified (:func:`identify_for_commissioning`). Measured on the development population: 300 s of
 filtered noise 0–4 V, 0.001–0.042 (8 of 8 units; commissioned, 100 % right for the median unit, 99.3 % worst);
 duty cycles, 0.008–1.0 (13 of 16 above 0.15)."""
-HELD_OUT_RATIO = 0.9
-"""When the halves disagree, the whole fit is still used unless the kept supply's 2-fold held-out valve error is
-below this many times the whole fits' (:func:`held_out_ratio`): the whole fits have five more parameters to fit a half
-with, so they predict the other half a little worse than their supply deserves. On the duty-cycle commissionings of
-tuning seeds 2032–2055 (44 units whose halves disagreed): 0.67 and 0.83 where the trained unit's relief was the closer
-(2048 unit 4, 2044 unit 9), 0.93–1.36 where the whole fit's was, near the boundary (2054 unit 8, 2050 unit 11, 2049
-unit 7, 2055 unit 15). A ratio of mean errors until 2026-11-27 (0.5; 2, then 1 before; docs/unseen-units.md)."""
 CAPACITY_MARGIN = 0.15
 """A pump the recording never drove to its limit (Dp left to its prior) is given at most this much more capacity
 than the recording drew from it (:func:`pump_capacity`). 0.05 until 2026-11-27: seed 2054's unit 6, whose duty cycle
@@ -184,7 +177,7 @@ class SupplyChoice(NamedTuple):
     split: float
     """Split-half disagreement |ln| of the fault levels (:data:`SPLIT_AGREEMENT`)."""
     held_out: float | None = None
-    """Held-out valve error of the kept-supply fits over that of the whole fits (:data:`HELD_OUT_RATIO`); None
+    """Held-out valve error of the kept-supply fits over that of the whole fits (:func:`held_out_ratio`); None
     when the halves agreed and it was not needed."""
     whole: UnitFit | None = None
     """The whole recording's fit with every parameter (the self-check's fallback reuses it, :func:`commission`)."""
@@ -202,8 +195,8 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     disagreed, also the halves, for the held-out choice below).
     When the halves disagree, each half is also fitted with the trained unit's supply (:data:`RESTRICTED_PARAMETERS`),
     and every half's fit predicts the other half's valve relation (:func:`~hydrowatch.condition.unit.valve_error`,
-    2-fold): the whole fit is still used unless the kept supply's held-out error is below :data:`HELD_OUT_RATIO` times
-    its (:func:`held_out_ratio`; and its level uncertainty within the limit). Otherwise only
+    2-fold): the whole fit is still used unless the kept supply's held-out error is clearly below its
+    (:func:`keeps_supply`; and its level uncertainty within the limit). Otherwise only
     :data:`RESTRICTED_PARAMETERS` are identified (``supply`` "kept from the trained unit": record 5 minutes of
     filtered noise over the command range to identify it).
     """
@@ -219,47 +212,26 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     def crossed(a: UnitFit, b: UnitFit) -> list[np.ndarray]:  # a predicts the second half, b the first
         return [valve_error(parts[1], a.parameters, *args[1:]), valve_error(parts[0], b.parameters, *args[1:])]
 
-    held_out, kept = None, []
+    held_out, keep, kept = None, False, []
     if split > SPLIT_AGREEMENT:
         kept = [identify_unit(part, *args, RESTRICTED_PARAMETERS) for part in parts]
-        held_out = held_out_ratio(crossed(*kept), crossed(first, second))
-    if split <= SPLIT_AGREEMENT or (held_out is not None and held_out >= HELD_OUT_RATIO):
+        held_out, keep = held_out_ratio(crossed(*kept), crossed(first, second)), keeps_supply(crossed(*kept),
+                                                                                             crossed(first, second))
+    if not keep:
         limit = on_search_limit(whole)
         if limit:  # not determined: held at the trained unit's value, the rest fitted again
             free = {**RELATION_PARAMETERS, "valve": tuple(n for n in RELATION_PARAMETERS["valve"] if n not in limit)}
             whole = identify_unit(windows, *args, free)
             if kept:  # the halves disagreed: the held-out error decides again, with the relief held
                 held = [identify_unit(part, *args, free, start=whole.parameters) for part in parts]
-                held_out = held_out_ratio(crossed(*kept), crossed(*held))
+                held_out, keep = held_out_ratio(crossed(*kept), crossed(*held)), keeps_supply(crossed(*kept),
+                                                                                             crossed(*held))
             event(_log, "relief on its search limit: held at the trained unit's", logging.INFO, parameters=limit,
                   again=on_search_limit(whole), held_out=held_out)
-        if ((held_out is None or held_out >= HELD_OUT_RATIO) and not on_search_limit(whole)
+        if (not keep and not on_search_limit(whole)
                 and level_uncertainty(features, whole) <= UNCERTAINTY_LIMIT):
             return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out, whole)
     return SupplyChoice(kept_supply(features, windows), KEPT, split, held_out, whole)
-
-
-def held_out_ratio(kept: Sequence[np.ndarray], whole: Sequence[np.ndarray]) -> float:
-    """How many times worse the kept supply's fits predict the other half than the whole fits' (:data:`HELD_OUT_RATIO`):
-    the geometric mean, over each direction's held-out windows, of the ratio of their valve errors, the two directions
-    weighted alike (each sequence: the first half's fit's errors on the second half's windows, the second's on the
-    first's, (L/min)², :func:`~hydrowatch.condition.unit.valve_error`).
-
-    Each held-out window counts once, and each half. A duty cycle visits operating points unevenly: a half that never
-    drove the valve where the other did extrapolates there with either supply, by orders of magnitude in a few windows,
-    and a ratio of mean errors let those decide alone (seed 2055, unit 15: 0.43, the kept supply better in 27 % of the
-    windows; per window 1.02, the whole fit, relief 1.03 × the unit's against the kept 0.80 ×). Likewise a sum over
-    the directions (seed 2047, unit 17: it kept the trained unit's relief, 1.41 × the unit's).
-    """
-    if len(kept) != len(whole) or not len(kept):
-        raise ValueError(f"held-out errors of {len(kept)} and {len(whole)} directions; need the same, at least one")
-    logs = []
-    for k, w in zip(kept, whole):
-        k_, w_ = (np.maximum(np.asarray(e, dtype=np.float64), 1e-300) for e in (k, w))
-        if k_.shape != w_.shape or not k_.size:
-            raise ValueError(f"held-out errors on {k_.shape} and {w_.shape} windows; need the same windows")
-        logs.append(float(np.mean(np.log(k_ / w_))))
-    return float(np.exp(np.mean(logs)))
 
 
 def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
