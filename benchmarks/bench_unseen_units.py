@@ -204,7 +204,9 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
                                      "open_set_cost", np.max)):
             share = np.array([100.0 * getattr(t, counts)[n][0] / max(getattr(t, counts)[n][1], 1) for t in tallies])
             rows[name].append(f"{np.median(share):.1f} / {worst(share):.1f}")
-            figures[f"{name.split(' (')[0]}|{n}"] = {"median": float(np.median(share)), "worst": float(worst(share))}
+            at = np.argmin(share) if worst is np.min else np.argmax(share)
+            figures[f"{name.split(' (')[0]}|{n}"] = {"median": float(np.median(share)), "worst": float(worst(share)),
+                                                   "worst_at": int(at)}
         e, w = ece([pair for t in tallies for pair in t.calibration[n]])
         rows["ECE / wrong with p > 0.99 (all units)"].append(f"{e:.3f} / {100 * w:.0f} %")
         figures[f"calibration|{n}"] = {"ece": e, "wrong_p99": w}
