@@ -143,3 +143,38 @@ def test_free_port_avoids_the_ports_already_chosen(monkeypatch) -> None:
     only = free_port()
     fallback = free_port(avoid={only})  # the range holds only the avoided port: the kernel chooses
     assert fallback != only and fallback > 0
+
+
+def test_waiting_for_subscribers_ends_when_told_to_stop() -> None:
+    """wait_for_subscribers returns False as soon as its stop event is set, not after its timeout."""
+    import threading
+
+    from hydrowatch.bus import Publisher
+
+    with open_session(BusSettings(port=free_port())) as session:
+        publisher = Publisher(session)
+        stop = threading.Event()
+        threading.Timer(0.3, stop.set).start()
+        began = time.monotonic()
+        assert publisher.wait_for_subscribers(["hydro/none/m1/sensors"], timeout=30.0, stop=stop) is False
+        assert 0.25 < time.monotonic() - began < 5.0
+        stop.clear()
+        assert publisher.wait_for_subscribers(["hydro/none/m1/sensors"], timeout=0.2, stop=stop) is False  # timeout
+
+
+def test_waiting_for_subscribers_waits_until_one_matches() -> None:
+    """Without a subscriber the wait runs to its timeout; with one on the key it returns True (the check once tested
+    zenoh's MatchingStatus object, always true, and never waited)."""
+    from hydrowatch.bus import Publisher
+
+    port = free_port()
+    with open_session(BusSettings(port=port)) as session:
+        publisher = Publisher(session)
+        began = time.monotonic()
+        assert publisher.wait_for_subscribers(["hydro/none/m1/sensors"], timeout=1.0, settle=0.0) is False
+        assert time.monotonic() - began >= 1.0
+        subscriber = Subscriber(session, "hydro/none/*/sensors")
+        try:
+            assert publisher.wait_for_subscribers(["hydro/none/m1/sensors"], timeout=10.0, settle=0.0) is True
+        finally:
+            subscriber.close()

@@ -412,3 +412,19 @@ def test_watch_shows_each_machines_wear_from_the_health_and_forecast_topics() ->
     components = lines[lines.index("components (cycles machines)") + 1]
     assert components.startswith("f1/rig1") and "cooler 100 · valve 73 (p = 0.90; healthy 100) since cycle" in (
         components), out
+
+
+def test_plant_answers_a_stop_while_it_waits_for_subscribers() -> None:
+    """A plant waiting for subscribers (--wait-subscribers 60, nobody listening) stops at once on SIGTERM instead of
+    sitting out the wait (a restarted plant in the web page's test once outlived its 30 s)."""
+    port = free_port()
+    plant = start("services.plant", "--fleet", FLEET, "--machines", 2, "--speed", 1, "--wait-subscribers", 60,
+                  "--bus-port", port)
+    try:
+        wait_handles_sigterm(plant)
+        time.sleep(1.0)  # inside the wait: nothing subscribes on this port
+        began = time.monotonic()
+        assert stop(plant) == 0
+        assert time.monotonic() - began < 10.0  # measured: ~0.3 s; 60 s and more before
+    finally:
+        plant.kill()

@@ -81,7 +81,8 @@ class Publisher:
             self._publishers[key] = pub
         return pub
 
-    def wait_for_subscribers(self, keys: Sequence[str], timeout: float, settle: float = SETTLE_S) -> bool:
+    def wait_for_subscribers(self, keys: Sequence[str], timeout: float, settle: float = SETTLE_S,
+                             stop: threading.Event | None = None) -> bool:
         """Declare the publishers of ``keys``, wait until each has a matching subscriber, then
         ``settle`` seconds more.
 
@@ -90,16 +91,18 @@ class Publisher:
         an embedded bus a peer hears of the others by gossip and connects to them a moment later
         (two recorder shards: the second one's declaration came mid-way through the first burst
         and it missed those messages), hence the settling time. Returns False when ``timeout``
-        seconds pass before every key matches.
+        seconds pass before every key matches, or at once when ``stop`` is set (a service told to
+        stop while it waits). Until 2026-11-27 this tested the ``MatchingStatus`` object, which is always
+        true, instead of its ``matching``: it never waited for a subscriber, only ``settle`` seconds.
         """
+        stop = stop if stop is not None else threading.Event()
         deadline = time.monotonic() + timeout
         publishers = [self._publisher(k) for k in keys]
-        while not all(p.matching_status for p in publishers):
-            if time.monotonic() >= deadline:
+        # zenoh's stub says bool; it returns a MatchingStatus, whose truth is always True
+        while not all(p.matching_status.matching for p in publishers):  # type: ignore[attr-defined]
+            if time.monotonic() >= deadline or stop.wait(0.01):
                 return False
-            time.sleep(0.01)
-        time.sleep(settle)
-        return True
+        return not stop.wait(settle)
 
     def put_payload(self, key: str, payload: bytes, publish_time_ns: int | None = None) -> None:
         """Publish already-encoded bytes on ``key`` (replay uses this to avoid re-encoding)."""

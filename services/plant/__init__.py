@@ -174,7 +174,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         publish_cpu_s = 0.0
         try:
             reporter.start()
-            if args.wait_subscribers > 0 and not publisher.wait_for_subscribers(fleet.keys, args.wait_subscribers):
+            if (args.wait_subscribers > 0 and not publisher.wait_for_subscribers(fleet.keys, args.wait_subscribers,
+                                                                                  stop=stop) and not stop.is_set()):
                 event(log, "no subscriber on some keys; publishing anyway", logging.WARNING,
                       waited_s=args.wait_subscribers)
             reporter.status = "running"

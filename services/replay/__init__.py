@@ -85,7 +85,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
                     topic = key(args.fleet, parsed.machine, parsed.topic)
                 if args.wait_subscribers > 0 and topic not in announced:
                     announced.add(topic)
-                    publisher.wait_for_subscribers([topic], args.wait_subscribers)
+                    publisher.wait_for_subscribers([topic], args.wait_subscribers, stop=stop)
                     wall0 = time.monotonic() - (0.0 if first_log is None else (log_time - first_log) / 1e9 / args.speed)
                 if first_log is None:
                     first_log = log_time
