@@ -212,11 +212,15 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     def crossed(a: UnitFit, b: UnitFit) -> list[np.ndarray]:  # a predicts the second half, b the first
         return [valve_error(parts[1], a.parameters, *args[1:]), valve_error(parts[0], b.parameters, *args[1:])]
 
+    def against_kept(a: UnitFit, b: UnitFit) -> tuple[float, bool]:  # the held-out ratio and choice, each error once
+        errors = crossed(a, b)
+        return held_out_ratio(kept_errors, errors), keeps_supply(kept_errors, errors)
+
     held_out, keep, kept = None, False, []
     if split > SPLIT_AGREEMENT:
         kept = [identify_unit(part, *args, RESTRICTED_PARAMETERS) for part in parts]
-        held_out, keep = held_out_ratio(crossed(*kept), crossed(first, second)), keeps_supply(crossed(*kept),
-                                                                                             crossed(first, second))
+        kept_errors = crossed(*kept)
+        held_out, keep = against_kept(first, second)
     if not keep:
         limit = on_search_limit(whole)
         if limit:  # not determined: held at the trained unit's value, the rest fitted again
@@ -224,8 +228,7 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
             whole = identify_unit(windows, *args, free)
             if kept:  # the halves disagreed: the held-out error decides again, with the relief held
                 held = [identify_unit(part, *args, free, start=whole.parameters) for part in parts]
-                held_out, keep = held_out_ratio(crossed(*kept), crossed(*held)), keeps_supply(crossed(*kept),
-                                                                                             crossed(*held))
+                held_out, keep = against_kept(*held)
             event(_log, "relief on its search limit: held at the trained unit's", logging.INFO, parameters=limit,
                   again=on_search_limit(whole), held_out=held_out)
         if (not keep and not on_search_limit(whole)
