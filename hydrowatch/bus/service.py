@@ -14,6 +14,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
+from hydrowatch.bus.heap import HeapTrimmer
 from hydrowatch.errors import HydrowatchError
 from hydrowatch.log import configure
 
@@ -63,9 +64,10 @@ def stop_on_signals() -> Iterator[threading.Event]:
 
 
 def run_service(run: Run, args: argparse.Namespace) -> int:
-    """Run a service until it returns or a signal stops it; sets the GIL switch interval for latency."""
+    """Run a service until it returns or a signal stops it; sets the GIL switch interval for latency and gives
+    freed memory back to the operating system once a minute (:class:`~hydrowatch.bus.heap.HeapTrimmer`)."""
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    with stop_on_signals() as stop:
+    with stop_on_signals() as stop, HeapTrimmer(stop):
         return int(run(args, stop) or 0)
 
 

@@ -1,0 +1,48 @@
+"""Freed memory goes back to the operating system in long-running services (hydrowatch.bus.heap)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from hydrowatch.bus import heap
+from hydrowatch.bus.heap import HeapTrimmer, resident_mb, trim_heap
+
+needs_trim = pytest.mark.skipif(heap._TRIM is None or resident_mb() is None,
+                                reason="the C library has no malloc_trim, or /proc is absent")
+
+
+@needs_trim
+def test_trimming_gives_back_what_was_freed_in_the_middle_of_the_heap() -> None:
+    trim_heap()
+    start = resident_mb()
+    blocks = [b"\x01" * (64 * 1024) for _ in range(2400)]  # 150 MB of malloc'd blocks (above pymalloc, below mmap)
+    pin = [b"\x01" * (64 * 1024) for _ in range(4)]  # keeps the heap's top in use: glibc cannot give it back by itself
+    grown = resident_mb()
+    del blocks
+    freed = resident_mb()
+    returned = trim_heap()
+    assert grown - start > 120.0
+    assert freed - start > 100.0  # freed, still resident: the allocator keeps it
+    assert returned is not None and returned > 100.0
+    assert resident_mb() - start < 30.0
+    del pin
+
+
+@needs_trim
+def test_the_trimmer_trims_while_the_service_runs_and_one_per_process() -> None:
+    stop = threading.Event()
+    with HeapTrimmer(stop, interval=0.02) as first, HeapTrimmer(stop, interval=0.02) as second:
+        time.sleep(0.3)
+        assert first.trims >= 3
+        assert second._thread is None and second.trims == 0
+    assert not first._thread.is_alive()
+    with HeapTrimmer(stop, interval=0.02) as again:  # the first has ended: the next one runs
+        time.sleep(0.1)
+    assert again.trims >= 1
+    stop.set()
+    with HeapTrimmer(stop, interval=0.02) as stopped:  # a service told to stop does not trim
+        time.sleep(0.1)
+    assert stopped.trims == 0
