@@ -7,6 +7,7 @@ A service is ``add_arguments(parser)`` plus ``run(args, stop) -> int``; ``run`` 
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import gc
 import signal
 import sys
@@ -20,6 +21,11 @@ from hydrowatch.log import configure
 
 SWITCH_INTERVAL_S = 0.0005
 """GIL switch interval of services: zenoh callbacks wait less for a busy main thread (stack-notes)."""
+
+STOP_DUMP_S = 20.0
+"""A service still running this many seconds after SIGINT or SIGTERM writes every thread's stack to stderr (its log):
+a plant that did not exit within 30 s of SIGTERM was seen twice (2026-11-26 in tests/test_web_browser.py, 2026-11-27 in
+tests/test_bus_topology.py, both under load, its last log line "plant started"), and a stack is what tells where."""
 
 LINGER_S = 2.0
 """Seconds a publishing service stays on the bus after its last message: closing a session drops
@@ -52,6 +58,8 @@ def stop_on_signals() -> Iterator[threading.Event]:
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     def handler(signum: int, frame: object) -> None:
+        if not stop.is_set():
+            faulthandler.dump_traceback_later(STOP_DUMP_S, exit=False)  # where a stop hangs (STOP_DUMP_S)
         stop.set()
 
     for sig in previous:
@@ -59,6 +67,7 @@ def stop_on_signals() -> Iterator[threading.Event]:
     try:
         yield stop
     finally:
+        faulthandler.cancel_dump_traceback_later()
         for sig, old in previous.items():
             signal.signal(sig, old)
 
