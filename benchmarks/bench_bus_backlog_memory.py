@@ -1,10 +1,11 @@
 """What a subscriber's backlog leaves in resident memory once it is read, and what trimming gives back (issue 18).
 
-Two zenoh peer sessions on loopback in this process: one publishes ``--messages`` payloads of ``--bytes`` each (as a
-sensor chunk of 20 samples) on 200 keys while the other's :class:`~hydrowatch.bus.pubsub.Subscriber` reads nothing;
-then the subscriber reads its whole backlog, and :func:`hydrowatch.bus.heap.trim_heap` runs. Printed per round: the
-process's RSS before the backlog, with it, once it is read, and after the trim (with the trim's duration). The
-services trim once a minute (:class:`~hydrowatch.bus.heap.HeapTrimmer`). Usage::
+Two zenoh peer sessions on loopback in this process: one publishes ``--messages`` sensor chunks of 20 samples (the
+study rig's channels, ~2.2 kB as Arrow IPC) on 200 keys while the other's
+:class:`~hydrowatch.bus.pubsub.Subscriber` reads nothing; then the subscriber reads its whole backlog, and
+:func:`hydrowatch.bus.heap.trim_heap` runs. Printed per round: the process's RSS before the backlog, with it, once
+it is read, and after the trim (with the trim's duration). The services trim once a minute
+(:class:`~hydrowatch.bus.heap.HeapTrimmer`). Usage::
 
     python benchmarks/bench_bus_backlog_memory.py [--messages 60000] [--rounds 3]
 """

@@ -46,4 +46,3 @@ def test_the_trimmer_trims_while_the_service_runs_and_one_per_process() -> None:
     with HeapTrimmer(stop, interval=0.02) as stopped:  # a service told to stop does not trim
         time.sleep(0.1)
     assert stopped.trims == 0
-

@@ -7,8 +7,8 @@ the process's resident memory stays at the backlog's high-water mark and climbs 
 Measured (2026-11-27, ``benchmarks/bench_bus_backlog_memory.py``: two peer sessions on loopback in one process, a
 backlog of 60,000 sensor chunks of 2.2 kB, then read to the end; beside two benchmark processes): RSS 128 → 275 MB
 with the backlog, **still 276 MB once it was read, 146 MB after** ``malloc_trim(0)`` (17–25 ms); in three rounds the
-trimmed RSS stayed at 146–147 MB. The 1-hour soaks' scorers rose +6 to +14 MB/h after their rings were full while
-tracemalloc found no Python object growing (docs/bus.md, "Soak"); the soak with trimming is there too.
+trimmed RSS stayed at 146–147 MB. This is not what made the 1-hour soaks' scorers grow after their rings were full:
+with the trimmer they still rose +6 and +15 MB/h (docs/bus.md, "Soak"), memory they hold.
 
 :class:`HeapTrimmer` calls ``malloc_trim(0)`` every :data:`TRIM_INTERVAL_S` from a daemon thread while a service
 runs (:func:`hydrowatch.bus.service.run_service`), so its RSS follows what it holds. Where the C library has no
@@ -76,13 +76,11 @@ class HeapTrimmer:
     ----------
     trims : int
         Trims done.
-    returned_mb : float
-        Resident memory the trims gave back, MB in all.
     """
 
     def __init__(self, stop: threading.Event, interval: float = TRIM_INTERVAL_S) -> None:
         self.stop, self.interval = stop, float(interval)
-        self.trims, self.returned_mb = 0, 0.0
+        self.trims = 0
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -91,7 +89,6 @@ class HeapTrimmer:
             while not (self._done.wait(self.interval) or self.stop.is_set()):
                 returned = trim_heap()
                 self.trims += 1
-                self.returned_mb += max(0.0, returned or 0.0)
                 if returned is not None and returned >= 1.0:
                     event(log, "heap trimmed", logging.DEBUG, returned_mb=round(returned, 1))
         finally:
