@@ -35,7 +35,7 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from hydrowatch.condition import ConditionFeatures, ConditionModel, pooled_windows, trailing_evidence
+from hydrowatch.condition import ConditionFeatures, ConditionModel
 from hydrowatch.health.classifier import HealthClassifier
 from hydrowatch.health.features import RelativeEntropyFeatures
 from hydrowatch.plant import PlantParameters, PlantSimulator
@@ -250,10 +250,7 @@ def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> 
         noticed, named = [], []
         for s in states[1:]:
             joined = np.concatenate([rows["healthy"][:12], rows[s]])
-            ratios = joined[:, : 2 * len(model.features_.feature_names_)]
-            judged = (model.judge_evidence(ratios, ratios) if n == 1
-                      else model.judge_pooled(*trailing_evidence(joined, n, layout), ratios, None,
-                                               pooled_windows(joined, n)))
+            judged = model.judge_rows(joined, n, None, layout)
             verdicts = [v.state for v in judged][12:]
             noticed.append(next((i for i, v in enumerate(verdicts) if v != "healthy"), len(verdicts)))
             named.append(next((i for i, v in enumerate(verdicts) if v == s), len(verdicts)))

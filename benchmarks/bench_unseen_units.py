@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from hydrowatch.condition import ConditionModel, pooled_windows, trailing_evidence
+from hydrowatch.condition import ConditionModel
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
@@ -75,12 +75,8 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     """Verdicts of one machine's windows for every pool size (one feature pass)."""
     rows = model.features_.transform_evidence(windows)
     reasons = model.features_.window_reasons(windows)
-    ratios = rows[:, : 2 * len(model.features_.feature_names_)]
-    out = {1: model.judge_evidence(ratios, ratios, reasons)}
     layout = model.features_.layout_for(windows)
-    for n in POOLS[1:]:
-        out[n] = model.judge_pooled(*trailing_evidence(rows, n, layout), ratios, reasons, pooled_windows(rows, n))
-    return out
+    return {n: model.judge_rows(rows, n, reasons, layout) for n in POOLS}  # what `score` gives, pool by pool
 
 
 def _count() -> list[int]:

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from test_condition_model import CHANNELS
 
-from hydrowatch.condition import ConditionFeatures, ConditionModel, EvidenceLayout, trailing_evidence
+from hydrowatch.condition import ConditionFeatures, ConditionModel, EvidenceLayout, pooled_windows, trailing_evidence
 from hydrowatch.condition import estimates as E
+from hydrowatch.condition.evidence import trailing_count
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import fault_parameters, severity_for_speed_drop, state_parameters
@@ -86,11 +87,12 @@ def test_band_edge_severities_settle_when_pooled(spread_machines):
         ratios = rows[:, :width]
         hits["window"].append(np.array([v.state == state for v in model.judge_evidence(ratios, ratios)]))
         g, a = trailing_evidence(rows, n, layout)
-        hits["pooled"].append(np.array([v.state == state for v in model.judge_pooled(g, a, ratios)])[n - 1:])
+        pooled = {"windows": pooled_windows(rows, n), "support": trailing_count(model.alone_unknown(ratios), rows, n)}
+        hits["pooled"].append(np.array([v.state == state for v in model.judge_pooled(g, a, ratios, **pooled)])[n - 1:])
         each = g.copy()  # round 3: the level prior averaged over the pool like evidence
         each[:, width // 2:] **= np.minimum(np.arange(1, len(rows) + 1), n)[:, None]
-        hits["prior per window"].append(np.array([v.state == state for v in model.judge_pooled(each, a, ratios)])
-                                        [n - 1:])
+        judged = model.judge_pooled(each, a, ratios, **pooled)
+        hits["prior per window"].append(np.array([v.state == state for v in judged])[n - 1:])
     acc = {k: float(np.mean(np.concatenate(v))) for k, v in hits.items()}
     # Measured: 55 % per window (holds cannot tell a spring from a coil), 98 % pooled once the pool
     # is full, 83 % with the prior counted per window.

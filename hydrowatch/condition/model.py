@@ -33,7 +33,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from hydrowatch.condition.evidence import pooled_windows, trailing_count, trailing_evidence
+from hydrowatch.condition.evidence import EvidenceLayout, pooled_windows, trailing_count, trailing_evidence
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
@@ -220,15 +220,29 @@ class ConditionModel:
         ``rows``: the windows' ``features_.transform_evidence`` when the caller has them already."""
         self._check_fitted()
         rows = self.features_.transform_evidence(windows) if rows is None else rows
-        reasons = self.features_.window_reasons(windows)
+        verdicts = self.judge_rows(rows, smoothing, self.features_.window_reasons(windows),
+                                   None if smoothing == 1 else self.features_.layout_for(windows))
+        return verdicts, rows[:, : len(self.features_.feature_names_)]
+
+    def judge_rows(self, rows: np.ndarray, smoothing: int = 1, reasons: Sequence[str | None] | None = None,
+                   layout: EvidenceLayout | None = None) -> list[Verdict]:
+        """Verdicts of one machine's consecutive windows from their ``features_.transform_evidence`` rows (n, ...).
+
+        The one path from evidence rows to verdicts (:meth:`judge` and the benchmarks that judge the same rows at
+        several pool sizes go through it): ``smoothing`` as in :meth:`judge`; ``reasons`` (n,) why a window is
+        invalid; ``layout`` the windows' ``features_.layout_for`` (needed when ``smoothing`` > 1). A pool reads
+        ``unknown`` only as :data:`CLEAR_FACTOR` allows.
+        """
+        self._check_fitted()
         ratios = rows[:, : 2 * len(self.features_.feature_names_)]
-        band = ratios[:, : len(self.features_.feature_names_)]
         if smoothing == 1:
-            return self.judge_evidence(ratios, ratios, reasons), band
-        layout = self.features_.layout_for(windows)
+            return self.judge_evidence(ratios, ratios, reasons)
+        if layout is None:
+            raise ParameterError("layout is needed to pool windows (smoothing > 1): pass "
+                                 "model.features_.layout_for(windows).")
         support = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
-                                 pooled_windows(rows, smoothing), support), band
+                                 windows=pooled_windows(rows, smoothing), support=support)
 
     def alone_unknown(self, ratios: np.ndarray) -> np.ndarray:
         """Whether each window alone is beyond every known state by the open-set rule, shape (n,) (NaN rows: False).
@@ -252,14 +266,15 @@ class ConditionModel:
         return getattr(self, "pool_open_set_", True) and set(self.features_.relations_) == {"load", "motor", "valve"}
 
     def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
-                     reasons: Sequence[str | None] | None = None, windows: np.ndarray | None = None,
-                     support: np.ndarray | None = None) -> list[Verdict]:
+                     reasons: Sequence[str | None] | None = None, *, windows: np.ndarray,
+                     support: np.ndarray) -> list[Verdict]:
         """Verdicts from pooled scores (:func:`~hydrowatch.condition.evidence.trailing_evidence`) and each
         window's own ratios ``current``, all shape (n, n_features); ``windows`` (n,): how many windows each row
         pools (:func:`~hydrowatch.condition.evidence.pooled_windows`; the probabilities weigh the evidence by it,
         :meth:`ParityRule.predict_proba`); ``support`` (n,): how many of them read ``unknown`` alone
-        (:meth:`alone_unknown`, :func:`~hydrowatch.condition.evidence.trailing_count`; None: not counted, the pooled
-        open-set limit alone decides). See :meth:`pools_open_set` and :data:`CLEAR_FACTOR`."""
+        (:meth:`alone_unknown`, :func:`~hydrowatch.condition.evidence.trailing_count`). Both are required: a pool
+        judged without them is not what :meth:`judge` gives (until 2026-11-27 the unseen-units benchmark left
+        ``support`` out and measured pools without :data:`CLEAR_FACTOR`'s rule). See :meth:`pools_open_set`."""
         if self.pools_open_set():
             return self.judge_evidence(decision, open_set, reasons, pooled=True, windows=windows, support=support)
         return self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons,

@@ -109,5 +109,5 @@ def judge_streams(model: ConditionModel, n_windows: int,
     decision, open_set, current = (np.stack([e[i] for e in evidence]) for i in range(3))
     if n_windows == 1:
         return model.judge_evidence(current, current, reasons)
-    return model.judge_pooled(decision, open_set, current, reasons, np.array([e[3] for e in evidence]),
-                              np.array([e[4] for e in evidence]))
+    return model.judge_pooled(decision, open_set, current, reasons, windows=np.array([e[3] for e in evidence]),
+                              support=np.array([e[4] for e in evidence]))
