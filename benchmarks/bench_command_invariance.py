@@ -36,6 +36,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel
+from hydrowatch.condition.evidence import operating_points
 from hydrowatch.health.classifier import HealthClassifier
 from hydrowatch.health.features import RelativeEntropyFeatures
 from hydrowatch.plant import PlantParameters, PlantSimulator
@@ -250,7 +251,8 @@ def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> 
         noticed, named = [], []
         for s in states[1:]:
             joined = np.concatenate([rows["healthy"][:12], rows[s]])
-            judged = model.judge_rows(joined, n, None, layout)
+            points = np.concatenate([operating_points(duty["healthy"][:12]), operating_points(duty[s])])
+            judged = model.judge_rows(joined, n, None, layout, points)
             verdicts = [v.state for v in judged][12:]
             noticed.append(next((i for i, v in enumerate(verdicts) if v != "healthy"), len(verdicts)))
             named.append(next((i for i, v in enumerate(verdicts) if v == s), len(verdicts)))

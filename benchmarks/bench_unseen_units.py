@@ -50,6 +50,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel
+from hydrowatch.condition.evidence import operating_points
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
@@ -58,7 +59,14 @@ from hydrowatch.verdict import Verdict
 
 CHANNELS = ("voltage", "flow", "speed", "torque", "temperature")
 W = 1000
-POOLS = (1, 3, 6, 12)
+POOLS = (1, 3, 6, 12, -12)
+"""Pool sizes judged; −12: 12 windows with every pooled fault taken as supported (``support_points`` 1, the pooled
+verdict before 2026-11-27's operating-point support, :data:`hydrowatch.condition.evidence.SUPPORT_POINTS`)."""
+
+
+def pool_name(n: int) -> str:
+    """A column's name: ``pool 12``, or ``pool 12, no support`` for −12 (:data:`POOLS`)."""
+    return f"pool {n}" if n > 0 else f"pool {-n}, no support"
 UNSEEN = tuple(s for s in EXTENDED_STATES if s not in STUDY_STATES)
 
 
@@ -75,8 +83,9 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     """Verdicts of one machine's windows for every pool size (one feature pass)."""
     rows = model.features_.transform_evidence(windows)
     reasons = model.features_.window_reasons(windows)
-    layout = model.features_.layout_for(windows)
-    return {n: model.judge_rows(rows, n, reasons, layout) for n in POOLS}  # what `score` gives, pool by pool
+    layout, points = model.features_.layout_for(windows), operating_points(windows)
+    return {n: model.judge_rows(rows, abs(n), reasons, layout, points, *(() if n > 0 else (1,)))
+            for n in POOLS}  # what `score` gives, per pool
 
 
 def _count() -> list[int]:
@@ -181,7 +190,7 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
     """Print median and worst unit per condition and pool; returns the figures (``worst_at``: its place in tallies)."""
     conditions = list(dict.fromkeys(c for c, _ in tallies[0].right))
     print(f"\n## {title}: {len(tallies)} units, % of windows right, median / worst unit")
-    print("| condition | " + " | ".join(f"pool {n}" for n in POOLS) + " |")
+    print("| condition | " + " | ".join(pool_name(n) for n in POOLS) + " |")
     print("|---|" + "---|" * len(POOLS))
     figures: dict[str, object] = {}
     for c in conditions:

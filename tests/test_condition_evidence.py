@@ -15,7 +15,14 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
-from hydrowatch.condition.evidence import SEVERITY_TOLERANCE, trailing_count
+from hydrowatch.condition.evidence import (
+    HOLD_SPAN,
+    SEVERITY_TOLERANCE,
+    distinct_points,
+    operating_points,
+    trailing_count,
+    trailing_support,
+)
 from hydrowatch.condition.model import CLEAR_FACTOR, CLEAR_WINDOWS, POOLED_EXCESS
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -137,19 +144,71 @@ def test_a_pool_reads_unknown_only_when_a_window_did_or_its_excess_is_clear(trai
     assert relations + middle < model.open_set_.thresholds_[k]  # no window of the first kind is unknown alone
     rows = np.stack([row(middle), row(middle), row(clear)])
     assert not model.alone_unknown(rows[:1]).any()
+    everything = np.ones((3, len(states)), dtype=bool)  # every state supported (SUPPORT_POINTS)
 
     def states_of(support: list[int]) -> list[str]:
-        return [v.state for v in model.judge_pooled(rows, rows, rows, windows=np.full(3, 12),
+        return [v.state for v in model.judge_pooled(rows, rows, rows, windows=np.full(3, 12), supported=everything,
                                                     support=np.array(support))]
 
     assert states_of([0, 1, 0]) == ["pump_leak_warning", "unknown", "unknown"]
     assert states_of([0, 0, 0])[0] == "pump_leak_warning"
     assert states_of([0, 0, 0])[2] == "unknown"  # clear, over 12 windows
     # over fewer than CLEAR_WINDOWS windows (a recording's first) the clear limit does not judge: the window itself did
-    short = model.judge_pooled(rows, rows, rows, windows=np.array([12, 12, CLEAR_WINDOWS - 1]), support=np.zeros(3))
+    short = model.judge_pooled(rows, rows, rows, windows=np.array([12, 12, CLEAR_WINDOWS - 1]), support=np.zeros(3),
+                               supported=everything)
     assert short[2].state == "pump_leak_warning"
     # the batch form counts the windows that read unknown alone over the same trailing windows it pools
     flags = np.array([True, False, False, True, False])
     ratios = np.ones((5, 2))
     ratios[2] = np.nan  # an invalid window is neither pooled nor counted
     np.testing.assert_array_equal(trailing_count(flags, ratios, 2), [1, 1, 0, 1, 1])
+
+
+def test_operating_points_tell_holds_from_moving_windows():
+    hold = np.full((1000, 4), 1.0)
+    hold[:, 0] = 2.0
+    ramp = hold.copy()
+    ramp[:, 0] = np.linspace(2.0, 2.5, 1000)
+    near = hold.copy()
+    near[:, 0] = 2.0 + 0.5 * HOLD_SPAN  # another hold within HOLD_SPAN of the first: the same point
+    points = operating_points(np.stack([hold, ramp, near, hold + [1.0, 0, 0, 0]]))
+    np.testing.assert_allclose(points[[0, 2, 3]], [2.0, 2.0 + 0.5 * HOLD_SPAN, 3.0])
+    assert np.isnan(points[1])
+    assert distinct_points(points) == 3  # the 2 V holds once, the ramp, the 3 V hold
+    assert distinct_points(points[[0, 2]]) == 1
+    assert distinct_points(np.array([np.nan, np.nan])) == 2  # each moving window a point of its own
+    with pytest.raises(DataError, match="command first"):
+        operating_points(np.zeros((3, 10)))
+
+
+def test_a_pooled_fault_needs_windows_at_two_operating_points(trained):
+    # Issue 11 item 2: windows of one hold share the relations' model error there; a fault that only they prefer to
+    # healthy (a commissioned unit's hold at the pump's limit) must not be carried over the windows beside them.
+    _, model = trained
+    states = list(model.features_.states_)
+    relations = len(model.features_.relations_)
+    k, h = states.index("relief_spring_warning"), states.index("healthy")
+    band = np.full((5, relations, len(states)), 50.0)
+    band[:, :, [h, k]] = 1.0  # healthy and the fault tie in every window (healthy wins ties by its margin)
+    band[2:4, 0, h] = 1.5  # two windows prefer the fault: log 1.5 = 0.41 beyond the margin
+    ratios = np.concatenate([band.reshape(5, -1)] * 2, axis=1)
+    leads = model.alone_leads(ratios)
+    assert leads[2:4, k].all() and not leads[[0, 1, 4], k].any() and not leads[:, h].any()
+    decision = np.exp(np.cumsum(np.log(ratios), axis=0) / np.arange(1, 6)[:, None])  # pooled from the first window
+    pooled = {"windows": np.arange(1, 6), "support": np.zeros(5)}
+
+    def last(points: list[float]) -> str:
+        supported = trailing_support(leads, np.array(points), ratios, 5)
+        return model.judge_pooled(decision, decision, ratios, **pooled, supported=supported)[-1].state
+
+    assert last([np.nan, np.nan, 3.49, 3.49, 2.0]) == "healthy"  # one hold: the last window's own verdict
+    assert last([np.nan, np.nan, 3.49, np.nan, 2.0]) == "relief_spring_warning"  # a hold and a ramp: two points
+    assert model.judge_pooled(decision, decision, ratios, **pooled, supported=np.ones((5, len(states)), bool)
+                              )[-1].state == "relief_spring_warning"  # without the rule the pool carries it
+    # the streaming form asks the same
+    stream = ConditionStream(model, n_windows=5)
+    rows = np.concatenate([ratios, np.zeros((5, 2 * len(states)))], axis=1)  # no severity to share
+    for row, point in zip(rows, [np.nan, np.nan, 3.49, 3.49, 2.0]):
+        stream.update_features(row, point, alone_unknown=False)
+    evidence = stream.evidence()
+    assert evidence is not None and not evidence[5][k]

@@ -63,6 +63,80 @@ command; no window alone was beyond the open-set rule, the pooled excess reached
 median unit (docs/unseen-units.md)."""
 
 
+HOLD_SPAN = 0.05
+"""A window whose command moves less than this (V, max − min) is a hold (:func:`operating_points`); two holds whose
+levels lie within it of each other (chained) are one operating point. Measured on the simulator's duty cycles (20 of
+200 s, 0.5–3.5 V): 421 of 800 windows of 5 s move less than 0.05 V (most not at all, a few by the sliver of a ramp's
+end), 40 by 0.05–0.1 V; filtered noise moves by 2–4 V in every window (no holds, the rule never acts)."""
+
+SUPPORT_POINTS = 2
+"""A pooled fault replaces a window's own verdict only when windows at this many distinct operating points of the
+pool each prefer it to ``healthy`` alone (:func:`supported_states`; 1: no such rule). The windows of one hold share
+the relations' model error at that point (the unit's parameters, its commissioning): misfit alike, they are one
+piece of evidence, not n, yet the pool's mean log ratio counts them n times and carries a fault over the windows
+that did not load the part. Measured (issue 11, tuning seeds 2057, 2059, 2060; docs/unseen-units.md): a commissioned
+13-state healthy unit whose 3.49 V hold at the pump's limit leaned relief_spring_warning in 4 windows (p 0.19–0.36
+alone) read relief_spring_alert pooled in 15 of 40 windows (75.0 %, per window 90 %)."""
+
+
+def operating_points(windows: np.ndarray) -> np.ndarray:
+    """Each raw window's operating point for :func:`supported_states`, shape (n,): the command's mean [V] in a hold
+    (it moves less than :data:`HOLD_SPAN`), NaN in a window that moves it (a point of its own).
+
+    ``windows`` (n, window, ≥ 1), the command in column 0 (:data:`hydrowatch.condition.layout.CHANNELS`).
+    """
+    w = np.asarray(windows, dtype=np.float64)
+    if w.ndim != 3 or w.shape[2] < 1:
+        raise DataError(f"windows must have shape (n_windows, window, channels), the command first. Got {w.shape}.")
+    command = w[:, :, 0]
+    held = np.ptp(command, axis=1) < HOLD_SPAN
+    return np.where(held, command.mean(axis=1), np.nan)
+
+
+def distinct_points(points: np.ndarray) -> int:
+    """How many operating points ``points`` (m,) (:func:`operating_points`) span: each NaN (a moving window) one, the
+    holds one per group of levels within :data:`HOLD_SPAN` of each other."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1)
+    held = np.sort(p[np.isfinite(p)])
+    return int(np.isnan(p).sum()) + (0 if held.size == 0 else 1 + int(np.sum(np.diff(held) > HOLD_SPAN)))
+
+
+def supported_states(leads: np.ndarray, points: np.ndarray, needed: int = SUPPORT_POINTS) -> np.ndarray:
+    """Whether windows at ``needed`` (:data:`SUPPORT_POINTS`) distinct operating points prefer each state, shape
+    (n_states,).
+
+    ``leads`` (m, n_states) bool: whether each pooled window alone prefers the state to ``healthy`` by the decision's
+    margin (:meth:`~hydrowatch.condition.model.ConditionModel.alone_leads`); ``points`` (m,) their
+    :func:`operating_points`.
+    """
+    lead = np.asarray(leads, dtype=bool)
+    p = np.asarray(points, dtype=np.float64).reshape(-1)
+    if lead.ndim != 2 or lead.shape[0] != p.size:
+        raise DataError(f"leads must have one row per point. Got leads {lead.shape} and {p.size} points.")
+    if needed <= 1:
+        return np.ones(lead.shape[1], dtype=bool)
+    return np.array([distinct_points(p[lead[:, k]]) >= needed for k in range(lead.shape[1])], dtype=bool)
+
+
+def trailing_support(leads: np.ndarray, points: np.ndarray, features: np.ndarray, n_windows: int,
+                     needed: int = SUPPORT_POINTS) -> np.ndarray:
+    """:func:`supported_states` over each row's trailing ``n_windows`` valid windows (the rows :func:`trailing_evidence`
+    pools), shape (n, n_states); invalid rows all False."""
+    n = _check_n(n_windows)
+    f = np.asarray(features, dtype=np.float64)
+    lead = np.asarray(leads, dtype=bool)
+    p = np.asarray(points, dtype=np.float64).reshape(-1)
+    if f.ndim != 2 or lead.ndim != 2 or lead.shape[0] != f.shape[0] or p.size != f.shape[0]:
+        raise DataError(f"leads and points must have one row per row of features {f.shape}. Got {lead.shape} and "
+                        f"{p.shape}.")
+    out = np.zeros(lead.shape, dtype=bool)
+    valid = np.flatnonzero(np.all(np.isfinite(f), axis=1))
+    for pos, i in enumerate(valid):
+        pool = valid[max(0, pos - n + 1):pos + 1]
+        out[i] = supported_states(lead[pool], p[pool], needed)
+    return out
+
+
 def _check_n(n_windows: int) -> int:
     if int(n_windows) != n_windows or n_windows < 1:
         raise ParameterError(f"n_windows must be an integer >= 1. Got {n_windows!r}; 1 means no smoothing.")

@@ -33,7 +33,15 @@ from typing import Any, cast
 
 import numpy as np
 
-from hydrowatch.condition.evidence import EvidenceLayout, pooled_windows, trailing_count, trailing_evidence
+from hydrowatch.condition.evidence import (
+    SUPPORT_POINTS,
+    EvidenceLayout,
+    operating_points,
+    pooled_windows,
+    trailing_count,
+    trailing_evidence,
+    trailing_support,
+)
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.rule import ParityRule
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
@@ -220,29 +228,54 @@ class ConditionModel:
         ``rows``: the windows' ``features_.transform_evidence`` when the caller has them already."""
         self._check_fitted()
         rows = self.features_.transform_evidence(windows) if rows is None else rows
+        pooled = smoothing > 1
         verdicts = self.judge_rows(rows, smoothing, self.features_.window_reasons(windows),
-                                   None if smoothing == 1 else self.features_.layout_for(windows))
+                                   self.features_.layout_for(windows) if pooled else None,
+                                   operating_points(windows) if pooled else None)
         return verdicts, rows[:, : len(self.features_.feature_names_)]
 
     def judge_rows(self, rows: np.ndarray, smoothing: int = 1, reasons: Sequence[str | None] | None = None,
-                   layout: EvidenceLayout | None = None) -> list[Verdict]:
+                   layout: EvidenceLayout | None = None, points: np.ndarray | None = None,
+                   support_points: int = SUPPORT_POINTS) -> list[Verdict]:
         """Verdicts of one machine's consecutive windows from their ``features_.transform_evidence`` rows (n, ...).
 
         The one path from evidence rows to verdicts (:meth:`judge` and the benchmarks that judge the same rows at
         several pool sizes go through it): ``smoothing`` as in :meth:`judge`; ``reasons`` (n,) why a window is
-        invalid; ``layout`` the windows' ``features_.layout_for`` (needed when ``smoothing`` > 1). A pool reads
-        ``unknown`` only as :data:`CLEAR_FACTOR` allows.
+        invalid; ``layout`` the windows' ``features_.layout_for`` and ``points`` their
+        :func:`~hydrowatch.condition.evidence.operating_points` (both needed when ``smoothing`` > 1). A pool reads
+        ``unknown`` only as :data:`CLEAR_FACTOR` allows, and a fault only where windows at ``support_points``
+        operating points support it (:data:`~hydrowatch.condition.evidence.SUPPORT_POINTS`; 1: no such rule).
         """
         self._check_fitted()
         ratios = rows[:, : 2 * len(self.features_.feature_names_)]
         if smoothing == 1:
             return self.judge_evidence(ratios, ratios, reasons)
-        if layout is None:
-            raise ParameterError("layout is needed to pool windows (smoothing > 1): pass "
-                                 "model.features_.layout_for(windows).")
-        support = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
+        if layout is None or points is None:
+            raise ParameterError("layout and points are needed to pool windows (smoothing > 1): pass "
+                                 "model.features_.layout_for(windows) and evidence.operating_points(windows).")
+        unknown = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
+        supported = trailing_support(self.alone_leads(ratios), points, rows, smoothing, support_points)
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
-                                 windows=pooled_windows(rows, smoothing), support=support)
+                                 windows=pooled_windows(rows, smoothing), support=unknown, supported=supported)
+
+    def alone_leads(self, ratios: np.ndarray) -> np.ndarray:
+        """Whether each window alone prefers each state to ``healthy`` by the decision's margin, shape (n, n_states)
+        (``healthy`` itself, NaN rows: False; every fault True when the decision is not a :class:`ParityRule` or
+        knows no ``healthy``: then no support is asked, :data:`~hydrowatch.condition.evidence.SUPPORT_POINTS`).
+
+        ``ratios`` (n, 2 · n_features): each window's own band then level ratios."""
+        self._check_fitted()
+        r = np.atleast_2d(np.asarray(ratios, dtype=np.float64))
+        rule, states = self.decision_, np.asarray(self.decision_.classes_)
+        healthy = states == "healthy"
+        if not isinstance(rule, ParityRule) or not healthy.any():
+            return np.tile(~healthy, (r.shape[0], 1))
+        logits = rule._logits(r)
+        lead = np.zeros(logits.shape, dtype=bool)
+        ok = np.all(np.isfinite(logits), axis=1)
+        lead[ok] = logits[ok] - logits[ok][:, healthy] > rule.healthy_margin
+        lead[:, healthy] = False
+        return cast(np.ndarray, lead)
 
     def alone_unknown(self, ratios: np.ndarray) -> np.ndarray:
         """Whether each window alone is beyond every known state by the open-set rule, shape (n,) (NaN rows: False).
@@ -267,18 +300,30 @@ class ConditionModel:
 
     def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
                      reasons: Sequence[str | None] | None = None, *, windows: np.ndarray,
-                     support: np.ndarray) -> list[Verdict]:
+                     support: np.ndarray, supported: np.ndarray) -> list[Verdict]:
         """Verdicts from pooled scores (:func:`~hydrowatch.condition.evidence.trailing_evidence`) and each
         window's own ratios ``current``, all shape (n, n_features); ``windows`` (n,): how many windows each row
         pools (:func:`~hydrowatch.condition.evidence.pooled_windows`; the probabilities weigh the evidence by it,
         :meth:`ParityRule.predict_proba`); ``support`` (n,): how many of them read ``unknown`` alone
         (:meth:`alone_unknown`, :func:`~hydrowatch.condition.evidence.trailing_count`). Both are required: a pool
         judged without them is not what :meth:`judge` gives (until 2026-11-27 the unseen-units benchmark left
-        ``support`` out and measured pools without :data:`CLEAR_FACTOR`'s rule). See :meth:`pools_open_set`."""
+        ``support`` out and measured pools without :data:`CLEAR_FACTOR`'s rule). ``supported`` (n, n_states): whether
+        windows at :data:`~hydrowatch.condition.evidence.SUPPORT_POINTS` operating points of each pool prefer each
+        state to ``healthy`` alone (:func:`~hydrowatch.condition.evidence.trailing_support`); a pooled fault without
+        it gives way to the window's own verdict. See :meth:`pools_open_set`."""
         if self.pools_open_set():
-            return self.judge_evidence(decision, open_set, reasons, pooled=True, windows=windows, support=support)
-        return self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons,
-                                   windows=windows)
+            verdicts = self.judge_evidence(decision, open_set, reasons, pooled=True, windows=windows, support=support)
+        else:
+            verdicts = self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons,
+                                           windows=windows)
+        index = {c: k for k, c in enumerate(np.asarray(self.decision_.classes_).tolist()) if c != "healthy"}
+        ok = np.atleast_2d(np.asarray(supported, dtype=bool))
+        alone = [i for i, v in enumerate(verdicts) if v.state in index and not ok[i, index[v.state]]]
+        if alone:
+            own = self.judge_evidence(current[alone], current[alone], [reasons[i] for i in alone] if reasons else None)
+            for i, v in zip(alone, own):
+                verdicts[i] = v
+        return verdicts
 
     def judge_evidence(self, decision: np.ndarray, open_set: np.ndarray, reasons: Sequence[str | None] | None = None,
                        pooled: bool = False, windows: np.ndarray | None = None,

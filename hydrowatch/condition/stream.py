@@ -7,10 +7,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from hydrowatch.condition.evidence import EvidenceSmoother
+from hydrowatch.condition.evidence import EvidenceSmoother, operating_points, supported_states
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.errors import NotFittedError
 from hydrowatch.verdict import Verdict
+
+Evidence = tuple[np.ndarray, np.ndarray, np.ndarray, int, int, np.ndarray]
+"""One stream's pooled evidence (:meth:`ConditionStream.evidence`), what :func:`judge_streams` stacks."""
 
 POOLED_WINDOWS = 12
 """Default windows pooled per verdict (60 s at 5 s windows): what 13 states with severities spread in
@@ -26,9 +29,11 @@ class ConditionStream:
     ``model.features_.transform_evidence``, its row via ``update_features``) and returns nothing;
     ``get`` returns the current verdict, None before the first valid window. Invalid windows are
     skipped (a gap does not flush the history). State: at most ``n_windows`` rows of
-    ``2 · (n_relations + 1) · n_states`` floats and as many flags (whether each window read ``unknown``
-    alone). Pooling and its open-set limit: :mod:`hydrowatch.condition.evidence`, :class:`ConditionModel`
-    (``pooled_excess``, :data:`~hydrowatch.condition.model.CLEAR_FACTOR`).
+    ``2 · (n_relations + 1) · n_states`` floats, as many flags (whether each window read ``unknown``
+    alone), rows of n_states flags (which states it preferred to ``healthy`` alone) and operating points. Pooling,
+    its open-set limit and its support: :mod:`hydrowatch.condition.evidence`, :class:`ConditionModel`
+    (``pooled_excess``, :data:`~hydrowatch.condition.model.CLEAR_FACTOR`,
+    :data:`~hydrowatch.condition.evidence.SUPPORT_POINTS`).
 
     Parameters
     ----------
@@ -51,29 +56,36 @@ class ConditionStream:
         self.temperature = temperature
         self._smoother = EvidenceSmoother(n_windows=n_windows, layout=model.features_.evidence_layout(temperature))
         self._alone: deque[bool] = deque(maxlen=n_windows)
+        self._leads: deque[np.ndarray] = deque(maxlen=n_windows)
+        self._points: deque[float] = deque(maxlen=n_windows)
 
     def update(self, window: np.ndarray) -> None:
         """Add one raw window, shape (window, 4 or 5; with or without the temperature as the stream was made).
         Returns nothing."""
-        self.update_features(self.model.features_.transform_evidence(np.asarray(window)[None])[0])
+        raw = np.asarray(window)[None]
+        self.update_features(self.model.features_.transform_evidence(raw)[0], float(operating_points(raw)[0]))
 
-    def update_features(self, features: np.ndarray, alone_unknown: bool | None = None) -> None:
+    def update_features(self, features: np.ndarray, point: float, alone_unknown: bool | None = None) -> None:
         """Add one window's ``transform_evidence`` row (NaN: invalid, skipped). Returns nothing.
 
+        ``point``: the window's :func:`~hydrowatch.condition.evidence.operating_points` (NaN: it moved the command).
         ``alone_unknown``: whether the window alone read ``unknown`` (:meth:`ConditionModel.alone_unknown`), when
         a scorer of many machines has it from one batched call; None works it out."""
         row = np.asarray(features, dtype=np.float64).reshape(-1)
         self._smoother.update(row)
         if np.all(np.isfinite(row)):
+            width = 2 * len(self.model.features_.feature_names_)
             if alone_unknown is None:
-                width = 2 * len(self.model.features_.feature_names_)
                 alone_unknown = bool(self.model.alone_unknown(row[None, :width])[0])
             self._alone.append(bool(alone_unknown))
+            self._leads.append(self.model.alone_leads(row[None, :width])[0])
+            self._points.append(float(point))
 
-    def evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int] | None:
+    def evidence(self) -> Evidence | None:
         """What :meth:`get` judges: the decision's and the open set's pooled scores and the last valid window's
         own ratios, each shape (n_ratios,) (all three that row when ``n_windows`` is 1), how many windows
-        are pooled and how many of them read ``unknown`` alone; None before any.
+        are pooled, how many of them read ``unknown`` alone, and which states windows at enough operating points
+        prefer to ``healthy`` (n_states,) (:func:`~hydrowatch.condition.evidence.supported_states`); None before any.
 
         A scorer of many machines stacks these rows and judges them in one call (:func:`judge_streams`).
         """
@@ -82,9 +94,10 @@ class ConditionStream:
         if pooled is None or latest is None:
             return None
         current = latest[: pooled[0].size]
+        supported = supported_states(np.stack(self._leads), np.array(self._points))
         if self.n_windows == 1:
-            return current, current, current, 1, int(self._alone[-1])
-        return pooled[0], pooled[1], current, len(self._smoother), sum(self._alone)
+            return current, current, current, 1, int(self._alone[-1]), supported
+        return pooled[0], pooled[1], current, len(self._smoother), sum(self._alone), supported
 
     def get(self) -> Verdict | None:
         """The verdict of the pooled windows, or None before the first valid window."""
@@ -92,8 +105,7 @@ class ConditionStream:
         return None if evidence is None else judge_streams(self.model, self.n_windows, [evidence])[0]
 
 
-def judge_streams(model: ConditionModel, n_windows: int,
-                  evidence: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]],
+def judge_streams(model: ConditionModel, n_windows: int, evidence: Sequence[Evidence],
                   reasons: Sequence[str | None] | None = None) -> list[Verdict]:
     """Verdicts of many streams' :meth:`ConditionStream.evidence` rows in one call (same as each stream's ``get``).
 
@@ -101,8 +113,9 @@ def judge_streams(model: ConditionModel, n_windows: int,
     ----------
     n_windows : int
         The streams' ``n_windows`` (1: each row judged alone).
-    evidence : sequence of (decision, open_set, current, windows pooled, of them read ``unknown`` alone)
-        Rows of shape (n_ratios,); NaN rows are invalid windows.
+    evidence : sequence of (decision, open_set, current, windows pooled, of them read ``unknown`` alone, supported)
+        Rows of shape (n_ratios,), NaN rows invalid windows; ``supported`` (n_states,) as in
+        :meth:`ConditionStream.evidence`.
     reasons : sequence of str or None, optional
         Why a window is invalid (its verdict then says so).
     """
@@ -110,4 +123,4 @@ def judge_streams(model: ConditionModel, n_windows: int,
     if n_windows == 1:
         return model.judge_evidence(current, current, reasons)
     return model.judge_pooled(decision, open_set, current, reasons, windows=np.array([e[3] for e in evidence]),
-                              support=np.array([e[4] for e in evidence]))
+                              support=np.array([e[4] for e in evidence]), supported=np.stack([e[5] for e in evidence]))

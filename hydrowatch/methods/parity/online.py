@@ -27,12 +27,13 @@ import numpy as np
 
 from hydrowatch.condition.degradation import DegradationStream
 from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.evidence import operating_points
 from hydrowatch.condition.layout import CHANNELS as WINDOW_CHANNELS
 from hydrowatch.condition.layout import TEMPERATURE, WIDTH
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.predictions import expected_sensors
-from hydrowatch.condition.stream import ConditionStream, judge_streams
+from hydrowatch.condition.stream import ConditionStream, Evidence, judge_streams
 from hydrowatch.errors import ParameterError
 from hydrowatch.expected import ExpectedWindow
 from hydrowatch.verdict import Verdict
@@ -107,10 +108,12 @@ class ParityJudge:
                 indices[i] = index
             reasons = model.features_.window_reasons(raw[mine])
             unknown_alone = model.alone_unknown(found[:, :width])
-            evidence: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
-            for i, why, novel in zip(mine.tolist(), reasons, unknown_alone.tolist()):
+            points = operating_points(raw[mine])
+            evidence: list[Evidence] = []
+            everything = np.ones(len(features.states_), dtype=bool)  # a window alone asks for no support
+            for i, why, novel, point in zip(mine.tolist(), reasons, unknown_alone.tolist(), points.tolist()):
                 row, machine = rows[i], machines[i]
-                alone = (row[:width], row[:width], row[:width], 1, int(novel))
+                alone = (row[:width], row[:width], row[:width], 1, int(novel), everything)
                 if self.smoothing == 1:
                     evidence.append(alone)
                     continue
@@ -119,7 +122,7 @@ class ParityJudge:
                     # the oil temperature came or went (its boxes differ): the pool starts again
                     pool = self._pools[machine] = ConditionStream(model, n_windows=self.smoothing,
                                                                   temperature=bool(known[i]))
-                pool.update_features(row, novel)
+                pool.update_features(row, point, novel)
                 got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
                 evidence.append(got if got is not None else alone)
             for i, v in zip(mine.tolist(), judge_streams(model, self.smoothing, evidence, reasons)):
