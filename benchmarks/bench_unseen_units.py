@@ -59,21 +59,14 @@ from hydrowatch.verdict import Verdict
 
 CHANNELS = ("voltage", "flow", "speed", "torque", "temperature")
 W = 1000
-VARIANTS: dict[int, tuple[str, int, dict[str, int]]] = {
-    -12: ("pool 12, no support", 12, {"support_points": 1}),
-    -13: ("pool 12, unknown at 2 points", 12, {"unknown_points": 2}),
-}
-"""Columns judged besides the default pools: key → (name, pool, ``ConditionModel.judge_rows`` options). −12: every
-pooled fault taken as supported (the pooled verdict before 2026-11-27's operating-point support,
-:data:`hydrowatch.condition.evidence.SUPPORT_POINTS`); −13: a pool reads ``unknown`` by the clear rule only when windows
-at two operating points read it alone."""
-POOLS = (1, 3, 6, 12, *VARIANTS)
-"""Columns judged: pool sizes with the defaults, then :data:`VARIANTS`."""
+POOLS = (1, 3, 6, 12, -12)
+"""Pool sizes judged; −12: 12 windows with every pooled fault taken as supported (``support_points`` 1, the pooled
+verdict before 2026-11-27's operating-point support, :data:`hydrowatch.condition.evidence.SUPPORT_POINTS`)."""
 
 
 def pool_name(n: int) -> str:
-    """A column's name (:data:`POOLS`)."""
-    return f"pool {n}" if n > 0 else VARIANTS[n][0]
+    """A column's name: ``pool 12``, or ``pool 12, no support`` for −12 (:data:`POOLS`)."""
+    return f"pool {n}" if n > 0 else f"pool {-n}, no support"
 UNSEEN = tuple(s for s in EXTENDED_STATES if s not in STUDY_STATES)
 
 
@@ -91,8 +84,8 @@ def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdi
     rows = model.features_.transform_evidence(windows)
     reasons = model.features_.window_reasons(windows)
     layout, points = model.features_.layout_for(windows), operating_points(windows)
-    return {n: model.judge_rows(rows, n, reasons, layout, points) if n > 0 else  # what `score` gives, per pool
-            model.judge_rows(rows, VARIANTS[n][1], reasons, layout, points, **VARIANTS[n][2]) for n in POOLS}
+    return {n: model.judge_rows(rows, abs(n), reasons, layout, points, *(() if n > 0 else (1,)))
+            for n in POOLS}  # what `score` gives, per pool
 
 
 def _count() -> list[int]:

@@ -236,7 +236,7 @@ class ConditionModel:
 
     def judge_rows(self, rows: np.ndarray, smoothing: int = 1, reasons: Sequence[str | None] | None = None,
                    layout: EvidenceLayout | None = None, points: np.ndarray | None = None,
-                   support_points: int = SUPPORT_POINTS, unknown_points: int = 1) -> list[Verdict]:
+                   support_points: int = SUPPORT_POINTS) -> list[Verdict]:
         """Verdicts of one machine's consecutive windows from their ``features_.transform_evidence`` rows (n, ...).
 
         The one path from evidence rows to verdicts (:meth:`judge` and the benchmarks that judge the same rows at
@@ -245,8 +245,6 @@ class ConditionModel:
         :func:`~hydrowatch.condition.evidence.operating_points` (both needed when ``smoothing`` > 1). A pool reads
         ``unknown`` only as :data:`CLEAR_FACTOR` allows, and a fault only where windows at ``support_points``
         operating points support it (:data:`~hydrowatch.condition.evidence.SUPPORT_POINTS`; 1: no such rule).
-        ``unknown_points`` > 1 asks the clear rule's windows that read ``unknown`` alone to lie at that many
-        operating points (measured, not the default: docs/unseen-units.md).
         """
         self._check_fitted()
         ratios = rows[:, : 2 * len(self.features_.feature_names_)]
@@ -255,9 +253,7 @@ class ConditionModel:
         if layout is None or points is None:
             raise ParameterError("layout and points are needed to pool windows (smoothing > 1): pass "
                                  "model.features_.layout_for(windows) and evidence.operating_points(windows).")
-        novel = self.alone_unknown(ratios)  # counted over the rows trailing_evidence pools
-        unknown = (trailing_count(novel, rows, smoothing) if unknown_points <= 1 else
-                   trailing_support(novel[:, None], points, rows, smoothing, unknown_points)[:, 0].astype(int))
+        unknown = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
         supported = trailing_support(self.alone_leads(ratios), points, rows, smoothing, support_points)
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
                                  windows=pooled_windows(rows, smoothing), support=unknown, supported=supported)
