@@ -248,18 +248,20 @@ def smoothing(states: tuple[str, ...], model: ConditionModel, test_s: float) -> 
         judged_long = {m: model.predict(w, smoothing=n) == m.split("#")[0] for m, w in long.items()}
         acc_long = np.mean(np.concatenate(list(judged_long.values())))
         acc_settled = np.mean(np.concatenate([settled(v, n) for v in judged_long.values()]))
-        noticed, named = [], []
+        noticed, named, named_free = [], [], []  # free: without the operating-point support (SUPPORT_POINTS)
         for s in states[1:]:
             joined = np.concatenate([rows["healthy"][:12], rows[s]])
             points = np.concatenate([operating_points(duty["healthy"][:12]), operating_points(duty[s])])
-            judged = model.judge_rows(joined, n, None, layout, points)
-            verdicts = [v.state for v in judged][12:]
+            verdicts = [v.state for v in model.judge_rows(joined, n, None, layout, points)][12:]
+            free = [v.state for v in model.judge_rows(joined, n, None, layout, points, support_points=1)][12:]
             noticed.append(next((i for i, v in enumerate(verdicts) if v != "healthy"), len(verdicts)))
             named.append(next((i for i, v in enumerate(verdicts) if v == s), len(verdicts)))
+            named_free.append(next((i for i, v in enumerate(free) if v == s), len(free)))
         print(f"  pooled over {n:2d} windows: duty cycle {100 * acc:5.1f}%; spread in bands {100 * acc_spread:5.1f}% "
               f"(long cycle {100 * acc_long:5.1f}%, settled {100 * acc_settled:5.1f}%); after a change of state, "
               f"not healthy after {np.mean(noticed):.1f} windows (max {max(noticed)}), named after "
-              f"{np.mean(named):.1f} (max {max(named)}) windows of 5 s", flush=True)
+              f"{np.mean(named):.1f} (max {max(named)}) windows of 5 s (without the operating-point support "
+              f"{np.mean(named_free):.1f}, max {max(named_free)})", flush=True)
     for n in (1, 12):
         confusion(model, long, n)
 
