@@ -79,7 +79,7 @@ SUPPORT_POINTS = 2
 pool each prefer it to ``healthy`` alone (:func:`supported_states`; 1: no such rule). The windows of one hold share
 the relations' model error at that point (the unit's parameters, its commissioning): misfit alike, they are one
 piece of evidence, not n, yet the pool's mean log ratio counts them n times and carries a fault over the windows
-that did not load the part. Measured (issue 11, tuning seeds 2057, 2059, 2060; docs/unseen-units.md): a commissioned
+that did not load the part. Measured (issue 11, tuning seeds 2059, 2060; docs/unseen-units.md): a commissioned
 13-state healthy unit whose 3.49 V hold at the pump's limit leaned relief_spring_warning in 4 windows (p 0.19–0.36
 alone) read relief_spring_alert pooled in 15 of 40 windows (75.0 %, per window 90 %). With 2 (pool 12, worst unit,
 20 units per seed): tuning seed 2060 healthy 75.0 → 93.3 (commissioned) and 93.3 → 99.4 (own models); fresh seed 2061
