@@ -65,12 +65,14 @@ class ConditionStream:
         raw = np.asarray(window)[None]
         self.update_features(self.model.features_.transform_evidence(raw)[0], float(operating_points(raw)[0]))
 
-    def update_features(self, features: np.ndarray, point: float, alone_unknown: bool | None = None) -> None:
+    def update_features(self, features: np.ndarray, point: float, alone_unknown: bool | None = None,
+                        leads: np.ndarray | None = None) -> None:
         """Add one window's ``transform_evidence`` row (NaN: invalid, skipped). Returns nothing.
 
         ``point``: the window's :func:`~hydrowatch.condition.evidence.operating_points` (NaN: it moved the command).
         ``alone_unknown``: whether the window alone read ``unknown`` (:meth:`ConditionModel.alone_unknown`), when
-        a scorer of many machines has it from one batched call; None works it out."""
+        a scorer of many machines has it from one batched call; None works it out. ``leads`` likewise: the window's
+        row of :meth:`ConditionModel.alone_leads` (n_states,)."""
         row = np.asarray(features, dtype=np.float64).reshape(-1)
         self._smoother.update(row)
         if np.all(np.isfinite(row)):
@@ -78,7 +80,8 @@ class ConditionStream:
             if alone_unknown is None:
                 alone_unknown = bool(self.model.alone_unknown(row[None, :width])[0])
             self._alone.append(bool(alone_unknown))
-            self._leads.append(self.model.alone_leads(row[None, :width])[0])
+            self._leads.append(self.model.alone_leads(row[None, :width])[0] if leads is None
+                               else np.asarray(leads, dtype=bool))
             self._points.append(float(point))
 
     def evidence(self) -> Evidence | None:

@@ -108,10 +108,12 @@ class ParityJudge:
                 indices[i] = index
             reasons = model.features_.window_reasons(raw[mine])
             unknown_alone = model.alone_unknown(found[:, :width])
+            leads = model.alone_leads(found[:, :width])  # one batched call, like the flags above
             points = operating_points(raw[mine])
             evidence: list[Evidence] = []
             everything = np.ones(len(features.states_), dtype=bool)  # a window alone asks for no support
-            for i, why, novel, point in zip(mine.tolist(), reasons, unknown_alone.tolist(), points.tolist()):
+            for i, why, novel, point, lead in zip(mine.tolist(), reasons, unknown_alone.tolist(), points.tolist(),
+                                                  leads):
                 row, machine = rows[i], machines[i]
                 alone = (row[:width], row[:width], row[:width], 1, int(novel), everything)
                 if self.smoothing == 1:
@@ -122,7 +124,7 @@ class ParityJudge:
                     # the oil temperature came or went (its boxes differ): the pool starts again
                     pool = self._pools[machine] = ConditionStream(model, n_windows=self.smoothing,
                                                                   temperature=bool(known[i]))
-                pool.update_features(row, point, novel)
+                pool.update_features(row, point, novel, lead)
                 got = pool.evidence() if why is None and np.all(np.isfinite(row)) else None
                 evidence.append(got if got is not None else alone)
             for i, v in zip(mine.tolist(), judge_streams(model, self.smoothing, evidence, reasons)):
