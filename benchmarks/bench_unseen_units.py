@@ -50,7 +50,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel
-from hydrowatch.condition.evidence import operating_points
+from hydrowatch.condition.evidence import SUPPORT_POINTS, distinct_points, operating_points
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
@@ -102,14 +102,21 @@ class Tally:
         self.unknown_known: dict[int, list[int]] = defaultdict(_count)
         self.open_set_cost: dict[int, list[int]] = defaultdict(_count)
         self.healthy: dict[int, list[int]] = defaultdict(_count)
+        self.seen: dict[tuple[str, int], list[int]] = defaultdict(_count)
 
     def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True,
-            telling: bool = True) -> None:
-        """Count one machine's verdicts; ``telling``: the sensors can tell its state (not oil without temperature)."""
+            telling: bool = True, points: np.ndarray | None = None) -> None:
+        """Count one machine's verdicts; ``telling``: the sensors can tell its state (not oil without temperature);
+        ``points`` its windows' operating points (:func:`seen_two_points`)."""
         for n, vs in by_pool.items():
             cell = self.right[(condition, n)]
             cell[0] += sum(v.state == truth for v in vs)
             cell[1] += len(vs)
+            if points is not None and abs(n) > 1:
+                seen = self.seen[(condition, n)]
+                at = seen_two_points(points, abs(n))
+                seen[0] += sum(v.state == truth for v, a in zip(vs, at) if a)
+                seen[1] += int(at.sum())
             if known:
                 u = self.unknown_known[n]
                 u[0] += sum(v.state == "unknown" for v in vs)
@@ -125,6 +132,16 @@ class Tally:
                     h = self.healthy[n]
                     h[0] += sum(v.state == "healthy" for v in vs)
                     h[1] += len(vs)
+
+
+def seen_two_points(points: np.ndarray, n: int) -> np.ndarray:
+    """Whether each window's pool of its last ``n`` windows spans :data:`SUPPORT_POINTS` distinct operating points
+    (:func:`~hydrowatch.condition.evidence.distinct_points`), shape (m,): where it does not (a recording that opens
+    with a long hold, say), the look-alike valve-side faults at severities away from their trained levels cannot be
+    told apart by any pool (issue 11, docs/unseen-units.md), so the benchmark also reports the windows where they
+    can."""
+    p = np.asarray(points, dtype=np.float64)
+    return np.array([distinct_points(p[max(0, j - n + 1): j + 1]) >= SUPPORT_POINTS for j in range(p.size)], dtype=bool)
 
 
 def decided(v: Verdict) -> str | None:
@@ -174,7 +191,8 @@ def evaluate(model: ConditionModel, day: PlantParameters, states: tuple[str, ...
     """Score one unit's later day under every condition into ``tally``."""
     for condition, params, u, effects, temperature in unit_conditions(day, states, rng, test_s, seed):
         for state, w in zip(states, simulate(params, u, seed + 100, effects)):
-            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]), telling=temperature)
+            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]), telling=temperature,
+                      points=operating_points(w) if "duty" in condition else None)
 
 
 def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: int, tally: Tally) -> None:
@@ -201,6 +219,16 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
             figures[f"{c}|{n}"] = {"median": float(np.median(acc)), "worst": float(acc.min()),
                                    "worst_at": int(np.argmin(acc))}
         print(f"| {c} | " + " | ".join(cells) + " |")
+        if any((c, n) in t.seen for t in tallies for n in POOLS):
+            cells = []
+            for n in POOLS:
+                acc = np.array([100.0 * t.seen[(c, n)][0] / t.seen[(c, n)][1] for t in tallies
+                                if t.seen[(c, n)][1]]) if abs(n) > 1 else np.array([])
+                cells.append(f"{np.median(acc):.1f} / {acc.min():.1f}" if acc.size else "–")
+                if acc.size:
+                    figures[f"{c}, pool at {SUPPORT_POINTS} points|{n}"] = {"median": float(np.median(acc)),
+                                                                          "worst": float(acc.min())}
+            print(f"| {c}, windows whose pool spans {SUPPORT_POINTS} operating points | " + " | ".join(cells) + " |")
     rows: dict[str, list[str]] = defaultdict(list)
     for n in POOLS:
         for name, counts, worst in (("healthy read healthy (with temperature)", "healthy", np.min),
