@@ -46,3 +46,21 @@ def test_the_trimmer_trims_while_the_service_runs_and_one_per_process() -> None:
     with HeapTrimmer(stop, interval=0.02) as stopped:  # a service told to stop does not trim
         time.sleep(0.1)
     assert stopped.trims == 0
+
+
+@pytest.mark.skipif(resident_mb() is None, reason="/proc is absent: the resident set cannot be read")
+def test_trimming_gives_back_what_arrows_allocator_kept() -> None:
+    import pyarrow as pa
+
+    trim_heap()
+    start = resident_mb()
+    buffers = [pa.allocate_buffer(64 * 1024) for _ in range(2400)]  # 150 MB from Arrow's own pool (mimalloc)
+    pin = buffers[::100]
+    grown = resident_mb()
+    del buffers
+    freed = resident_mb()
+    returned = trim_heap()
+    assert grown - start > 120.0
+    assert returned is not None and returned > 100.0, (pa.default_memory_pool().backend_name, freed - start)
+    assert resident_mb() - start < 30.0
+    del pin

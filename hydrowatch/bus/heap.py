@@ -8,11 +8,19 @@ Measured (2026-11-27, ``benchmarks/bench_bus_backlog_memory.py``: two peer sessi
 backlog of 60,000 sensor chunks of 2.2 kB, then read to the end; beside two benchmark processes): RSS 128 → 275 MB
 with the backlog, **still 276 MB once it was read, 146 MB after** ``malloc_trim(0)`` (17–25 ms); in three rounds the
 trimmed RSS stayed at 146–147 MB. This is not what made the 1-hour soaks' scorers grow after their rings were full:
-with the trimmer they still rose +6 and +15 MB/h (docs/bus.md, "Soak"), memory they hold.
+with the trimmer they still rose +6 and +15 MB/h (docs/bus.md, "Soak").
 
-:class:`HeapTrimmer` calls ``malloc_trim(0)`` every :data:`TRIM_INTERVAL_S` from a daemon thread while a service
-runs (:func:`hydrowatch.bus.service.run_service`), so its RSS follows what it holds. Where the C library has no
-``malloc_trim`` (musl, macOS) it does nothing.
+Arrow has an allocator of its own (pyarrow's default pool is mimalloc, or jemalloc), which ``malloc_trim`` does not
+reach and which keeps what was freed for reuse by the thread that freed it: every message the services decode or
+encode is an Arrow buffer, allocated on zenoh's threads and freed on others. Measured (2026-11-27): 150 MB of 64 kB
+Arrow buffers freed stay resident (RSS 69 → 271 → **271** MB) until ``MemoryPool.release_unused()`` (83 MB); four
+threads doing the same left 619 MB resident, 85 after the release. A scorer of 200 machines in real time (the scorer
+service in one process, ``recordings/diag/mem_probe*.py``) grew outside glibc's heap with its arenas flat
+(docs/bus.md, "Arrow's allocator").
+
+:class:`HeapTrimmer` gives back both every :data:`TRIM_INTERVAL_S` from a daemon thread while a service runs
+(:func:`hydrowatch.bus.service.run_service`), so its RSS follows what it holds: ``malloc_trim(0)`` where the C library
+has it (not musl or macOS), and Arrow's ``release_unused()``.
 """
 
 from __future__ import annotations
@@ -57,13 +65,22 @@ def resident_mb() -> float | None:
         return None
 
 
+def _release_arrow() -> None:
+    """Give Arrow's allocator's unused memory back (module docstring); nothing where pyarrow is not loaded."""
+    import sys
+
+    arrow = sys.modules.get("pyarrow")
+    if arrow is not None:
+        arrow.default_memory_pool().release_unused()
+
+
 def trim_heap() -> float | None:
-    """Give the allocator's free pages back to the operating system; the MB the resident set fell by (None when
-    the C library cannot trim or /proc cannot say)."""
-    if _TRIM is None:
-        return None
+    """Give the allocators' free pages back to the operating system (glibc's and Arrow's); the MB the resident set
+    fell by (None when /proc cannot say)."""
     before = resident_mb()
-    _TRIM(0)
+    if _TRIM is not None:
+        _TRIM(0)
+    _release_arrow()
     after = resident_mb()
     return None if before is None or after is None else before - after
 
@@ -95,7 +112,7 @@ class HeapTrimmer:
             _ACTIVE.release()
 
     def __enter__(self) -> HeapTrimmer:
-        if _TRIM is not None and self.interval > 0 and _ACTIVE.acquire(blocking=False):
+        if self.interval > 0 and _ACTIVE.acquire(blocking=False):
             self._thread = threading.Thread(target=self._run, name="heap-trim", daemon=True)
             self._thread.start()
         return self
