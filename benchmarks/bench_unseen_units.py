@@ -50,7 +50,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import ConditionModel
-from hydrowatch.condition.evidence import SUPPORT_POINTS, distinct_points, operating_points
+from hydrowatch.condition.evidence import SUPPORT_POINTS, operating_points, trailing_support
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import EXTENDED_STATES, STUDY_STATES, random_state_parameters, state_parameters
@@ -79,11 +79,20 @@ def simulate(params: list[PlantParameters], u: np.ndarray, seed: int, effects: d
     return [np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1) for i in range(len(params))]
 
 
-def verdicts(model: ConditionModel, windows: np.ndarray) -> dict[int, list[Verdict]]:
-    """Verdicts of one machine's windows for every pool size (one feature pass)."""
+def verdicts(model: ConditionModel, windows: np.ndarray,
+             seen: dict[int, np.ndarray] | None = None) -> dict[int, list[Verdict]]:
+    """Verdicts of one machine's windows for every pool size (one feature pass); with ``seen``, also fills in, per
+    pool size above 1, whether each window's pool spans :data:`SUPPORT_POINTS` operating points (the same trailing
+    valid windows the pool holds, :func:`~hydrowatch.condition.evidence.trailing_support`). Where it does not (a
+    recording that opens with a long hold, say), the look-alike valve-side faults at severities away from their
+    trained levels cannot be told apart by any pool (issue 11, docs/unseen-units.md), so the benchmark also reports
+    the windows where they can."""
     rows = model.features_.transform_evidence(windows)
     reasons = model.features_.window_reasons(windows)
     layout, points = model.features_.layout_for(windows), operating_points(windows)
+    if seen is not None:
+        every = np.ones((len(points), 1), dtype=bool)
+        seen.update({n: trailing_support(every, points, rows, abs(n))[:, 0] for n in POOLS if abs(n) > 1})
     return {n: model.judge_rows(rows, abs(n), reasons, layout, points, *(() if n > 0 else (1,)))
             for n in POOLS}  # what `score` gives, per pool
 
@@ -105,18 +114,17 @@ class Tally:
         self.seen: dict[tuple[str, int], list[int]] = defaultdict(_count)
 
     def add(self, condition: str, truth: str, by_pool: dict[int, list[Verdict]], known: bool = True,
-            telling: bool = True, points: np.ndarray | None = None) -> None:
+            telling: bool = True, seen: dict[int, np.ndarray] | None = None) -> None:
         """Count one machine's verdicts; ``telling``: the sensors can tell its state (not oil without temperature);
-        ``points`` its windows' operating points (:func:`seen_two_points`)."""
+        ``seen`` per pool size, which windows' pools span two operating points (:func:`verdicts`)."""
         for n, vs in by_pool.items():
             cell = self.right[(condition, n)]
             cell[0] += sum(v.state == truth for v in vs)
             cell[1] += len(vs)
-            if points is not None and abs(n) > 1:
-                seen = self.seen[(condition, n)]
-                at = seen_two_points(points, abs(n))
-                seen[0] += sum(v.state == truth for v, a in zip(vs, at) if a)
-                seen[1] += int(at.sum())
+            if seen and n in seen:
+                two = self.seen[(condition, n)]
+                two[0] += sum(v.state == truth for v, a in zip(vs, seen[n]) if a)
+                two[1] += int(seen[n].sum())
             if known:
                 u = self.unknown_known[n]
                 u[0] += sum(v.state == "unknown" for v in vs)
@@ -132,16 +140,6 @@ class Tally:
                     h = self.healthy[n]
                     h[0] += sum(v.state == "healthy" for v in vs)
                     h[1] += len(vs)
-
-
-def seen_two_points(points: np.ndarray, n: int) -> np.ndarray:
-    """Whether each window's pool of its last ``n`` windows spans :data:`SUPPORT_POINTS` distinct operating points
-    (:func:`~hydrowatch.condition.evidence.distinct_points`), shape (m,): where it does not (a recording that opens
-    with a long hold, say), the look-alike valve-side faults at severities away from their trained levels cannot be
-    told apart by any pool (issue 11, docs/unseen-units.md), so the benchmark also reports the windows where they
-    can."""
-    p = np.asarray(points, dtype=np.float64)
-    return np.array([distinct_points(p[max(0, j - n + 1): j + 1]) >= SUPPORT_POINTS for j in range(p.size)], dtype=bool)
 
 
 def decided(v: Verdict) -> str | None:
@@ -191,8 +189,9 @@ def evaluate(model: ConditionModel, day: PlantParameters, states: tuple[str, ...
     """Score one unit's later day under every condition into ``tally``."""
     for condition, params, u, effects, temperature in unit_conditions(day, states, rng, test_s, seed):
         for state, w in zip(states, simulate(params, u, seed + 100, effects)):
-            tally.add(condition, state, verdicts(model, w if temperature else w[:, :, :4]), telling=temperature,
-                      points=operating_points(w) if "duty" in condition else None)
+            seen: dict[int, np.ndarray] | None = {} if "duty" in condition else None
+            by_pool = verdicts(model, w if temperature else w[:, :, :4], seen)
+            tally.add(condition, state, by_pool, telling=temperature, seen=seen)
 
 
 def open_set(model: ConditionModel, day: PlantParameters, test_s: float, seed: int, tally: Tally) -> None:

@@ -29,6 +29,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import sys
 import threading
 from collections.abc import Callable
 from types import TracebackType
@@ -67,8 +68,6 @@ def resident_mb() -> float | None:
 
 def _release_arrow() -> None:
     """Give Arrow's allocator's unused memory back (module docstring); nothing where pyarrow is not loaded."""
-    import sys
-
     arrow = sys.modules.get("pyarrow")
     if arrow is not None:
         arrow.default_memory_pool().release_unused()
