@@ -395,3 +395,66 @@ def test_the_trained_supply_is_kept_only_where_it_predicts_the_held_out_windows_
     se = np.sqrt(d[0].var(ddof=1) / 30 + d[1].var(ddof=1) / 30) / 2
     assert H.held_out_upper(scatter, whole) == pytest.approx(np.exp((d[0].mean() + d[1].mean()) / 2 + 1.96 * se))
     assert not H.keeps_supply([w * 0.95 for w in whole], whole)  # steady but not below HELD_OUT_RATIO
+
+
+def _with_load_alert(features):
+    """The features with a load alert level as well (the module's models are trained on warnings only)."""
+    out = copy.copy(features)
+    out.levels_ = {**features.levels_, "load_alert": 0.0}
+    return out
+
+
+def test_the_load_levels_tolerance_is_half_their_ratio_and_a_ridge_point_exceeds_it(models) -> None:
+    """Half of ln(alert / warning) of the load fault; a relief on its ridge (Pc 1.45 ×, Kr 0.51 ×, seed 2064's unit
+    11) moves the load levels by more than that, a 3 % change of Pc by far less."""
+    from hydrowatch.condition import ridge
+    from hydrowatch.plant.faults import level_severity
+
+    f = _with_load_alert(models[0].features_)
+    p = f.nominal_
+    half = 0.5 * np.log(level_severity("load", "alert", p) / level_severity("load", "warning", p))
+    tolerances = ridge.level_tolerances(f)
+    names = list(f.levels_)
+    assert tolerances[names.index("load_alert")] == pytest.approx(half, rel=1e-9) and 0.2 < half < 0.45
+    assert np.isinf(tolerances[names.index("motor_leak_warning")])  # not a ridge fault
+    assert np.all(np.isinf(ridge.level_tolerances(models[0].features_)))  # trained at one load level: not asked
+    assert ridge.level_change(f, p, p.replace(Pc=1.45 * p.Pc, Kr=0.51 * p.Kr)) > 1.0
+    assert ridge.level_change(f, p, p.replace(Pc=1.03 * p.Pc)) < 0.3
+
+
+def test_a_flat_profile_that_moves_the_load_levels_keeps_the_trained_units_supply(models, duty_healthy, duty_fit,
+                                                                                 monkeypatch) -> None:
+    """The recording cannot place the load levels (the criterion flat along the ridge while they move) and the
+    trained unit's supply places them elsewhere: it is kept. Where the kept supply agrees, or the profile rises, the
+    whole fit stays."""
+    from hydrowatch.condition import ridge
+
+    f = _with_load_alert(models[0].features_)
+    p = duty_fit.parameters
+    flat = [ridge.ProfilePoint(-0.4, 5.0, 1.4), ridge.ProfilePoint(0.2, -3.0, 0.6)]
+    steep = [ridge.ProfilePoint(-0.4, 900.0, 1.4), ridge.ProfilePoint(0.2, 60.0, 0.6)]
+    assert ridge.levels_undetermined(flat) == flat[0] and ridge.levels_undetermined(steep) is None
+    far = dataclasses.replace(duty_fit, parameters=p.replace(Pc=0.6 * p.Pc))
+    monkeypatch.setattr(C, "kept_supply", lambda *a: far)
+    monkeypatch.setattr(C, "valve_profile", lambda *a: flat)
+    assert C._levels_on_ridge(f, duty_fit, duty_healthy) is far
+    monkeypatch.setattr(C, "valve_profile", lambda *a: steep)
+    assert C._levels_on_ridge(f, duty_fit, duty_healthy) is None
+    monkeypatch.setattr(C, "valve_profile", lambda *a: flat)
+    near = dataclasses.replace(duty_fit, parameters=p.replace(Pc=1.02 * p.Pc))
+    monkeypatch.setattr(C, "kept_supply", lambda *a: near)
+    assert C._levels_on_ridge(f, duty_fit, duty_healthy) is None
+
+
+def test_the_relief_profile_moves_the_load_levels_further_the_further_it_shifts(models, duty_healthy,
+                                                                               duty_fit) -> None:
+    """On a real duty-cycle fit: one point per shift, the load levels moving more at ±0.4 than at ±0.2, and the
+    criterion rising from −0.2 to −0.4 (the relief far below the fit no longer explains the flow)."""
+    from hydrowatch.condition import ridge
+
+    f = _with_load_alert(models[0].features_)
+    profile = {pt.shift: pt for pt in ridge.valve_profile(f, duty_fit, duty_healthy)}
+    assert sorted(profile) == sorted(ridge.SHIFTS)
+    assert profile[-0.4].level_change > profile[-0.2].level_change > 0.2
+    assert profile[0.4].level_change > profile[0.2].level_change > 0.2
+    assert profile[-0.4].rise > profile[-0.2].rise

@@ -51,6 +51,7 @@ from hydrowatch.condition.informed import level_uncertainty, levels
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.refusal import CommissioningError as CommissioningError  # the public name stays here
 from hydrowatch.condition.refusal import check_excitation, fault_present
+from hydrowatch.condition.ridge import level_change, levels_undetermined, valve_profile
 from hydrowatch.condition.unit import (
     BOUND,
     BOUNDS,
@@ -233,8 +234,27 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
                   again=on_search_limit(whole), held_out=held_out)
         if (not keep and not on_search_limit(whole)
                 and level_uncertainty(features, whole) <= UNCERTAINTY_LIMIT):
-            return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out, whole)
+            on_ridge = _levels_on_ridge(features, whole, windows)
+            if on_ridge is None:
+                return SupplyChoice(pump_capacity(features, whole, windows), "identified", split, held_out, whole)
+            return SupplyChoice(on_ridge, KEPT, split, held_out, whole)
     return SupplyChoice(kept_supply(features, windows), KEPT, split, held_out, whole)
+
+
+def _levels_on_ridge(features: ConditionFeatures, whole: UnitFit, windows: np.ndarray) -> UnitFit | None:
+    """The trained unit's supply (:func:`kept_supply`) when the recording leaves the load levels on the relief's ridge
+    (:func:`~hydrowatch.condition.ridge.levels_undetermined`) and the kept supply places them more than their
+    tolerance from the whole fit: the data cannot choose, the build spread between units (the prior) can. None
+    otherwise. Tuning seed 2064 (19 duty-cycle commissionings): unit 11 alone, 79.6 → 100 % right (7 states),
+    86.2 → 96.0 (13 states) on a later day's duty cycle (docs/unseen-units.md)."""
+    point = levels_undetermined(valve_profile(features, whole, windows))
+    if point is None:
+        return None
+    kept = kept_supply(features, windows)
+    change = level_change(features, whole.parameters, kept.parameters)
+    event(_log, "load levels on the relief's ridge", logging.INFO, shift=point.shift, rise=round(point.rise, 1),
+          along=round(point.level_change, 2), kept=round(change, 2))
+    return kept if change > 1.0 else None
 
 
 def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
