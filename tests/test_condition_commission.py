@@ -19,7 +19,7 @@ from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.condition.unit import drawn_flow, identify_unit, valve_error
-from hydrowatch.errors import DataError
+from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -404,7 +404,7 @@ def _with_load_alert(features):
     return out
 
 
-def test_the_load_levels_tolerance_is_half_their_ratio_and_a_ridge_point_exceeds_it(models) -> None:
+def test_the_load_levels_tolerance_is_half_their_ratio_and_a_ridge_point_exceeds_it(models, monkeypatch) -> None:
     """Half of ln(alert / warning) of the load fault; a relief on its ridge (Pc 1.45 ×, Kr 0.51 ×, seed 2064's unit
     11) moves the load levels by more than that, a 3 % change of Pc by far less."""
     from hydrowatch.condition import ridge
@@ -413,13 +413,23 @@ def test_the_load_levels_tolerance_is_half_their_ratio_and_a_ridge_point_exceeds
     f = _with_load_alert(models[0].features_)
     p = f.nominal_
     half = 0.5 * np.log(level_severity("load", "alert", p) / level_severity("load", "warning", p))
-    tolerances = ridge.level_tolerances(f)
-    names = list(f.levels_)
-    assert tolerances[names.index("load_alert")] == pytest.approx(half, rel=1e-9) and 0.2 < half < 0.45
-    assert np.isinf(tolerances[names.index("motor_leak_warning")])  # not a ridge fault
+    assert ridge.level_tolerances(f) == pytest.approx([half, half], rel=1e-9) and 0.2 < half < 0.45  # load only
     assert np.all(np.isinf(ridge.level_tolerances(models[0].features_)))  # trained at one load level: not asked
     assert ridge.level_change(f, p, p.replace(Pc=1.45 * p.Pc, Kr=0.51 * p.Kr)) > 1.0
     assert ridge.level_change(f, p, p.replace(Pc=1.03 * p.Pc)) < 0.3
+
+    def unreachable(fault: str, level: str, q):  # as the simulator says where the physics reaches no such drop
+        if q.Pc < 0.5 * p.Pc or fault == "relief_spring":
+            raise ParameterError(f"speed drop of fault {fault!r} must be at most 0.2 (the physics reaches no more)")
+        return level_severity(fault, level, q)
+
+    monkeypatch.setattr(ridge, "level_severity", unreachable)
+    monkeypatch.setattr("hydrowatch.condition.informed.level_severity", unreachable)
+    relief = copy.copy(f)  # 13 states: a point far along the ridge that reaches no relief-spring alert (seed 2066)
+    relief.levels_ = {**f.levels_, "relief_spring_warning": 0.0, "relief_spring_alert": 0.0}
+    assert ridge.level_change(relief, p, p.replace(Pc=1.03 * p.Pc)) < 0.3  # only the load is asked: no error
+    assert ridge.level_change(f, p, p.replace(Pc=0.4 * p.Pc)) == np.inf  # no place to put the level
+    assert ridge.level_change(f, p.replace(Pc=0.4 * p.Pc), p.replace(Pc=0.45 * p.Pc)) == 0.0  # neither unit has one
 
 
 def test_a_flat_profile_that_moves_the_load_levels_keeps_the_trained_units_supply(models, duty_healthy, duty_fit,
@@ -458,3 +468,38 @@ def test_the_relief_profile_moves_the_load_levels_further_the_further_it_shifts(
     assert profile[-0.4].level_change > profile[-0.2].level_change > 0.2
     assert profile[0.4].level_change > profile[0.2].level_change > 0.2
     assert profile[-0.4].rise > profile[-0.2].rise
+
+
+def test_near_standstill_the_load_relation_of_a_unit_whose_brake_was_left_to_its_prior_is_not_judged(
+        units, models, duty_healthy, duty_fit) -> None:
+    """A duty cycle never comes near standstill, so commissioning from one leaves ωs to its prior (``brake_open_``);
+    windows of a machine nearly stalled read every state's load ratio 1 and carry no load severity, while the same
+    windows on features that know ωs keep the load relation's misfit; the flag survives saving."""
+    from hydrowatch.condition.features import ConditionFeatures
+    from hydrowatch.condition.standstill import MIN_SHARE, near_standstill
+
+    omega_s = 0.2
+    speed = np.full((3, 1000), 5.0)
+    speed[1, : int(MIN_SHARE * 1000)] = 0.1  # 5 % of the samples below 3 ωs
+    speed[2, : int(MIN_SHARE * 1000) - 1] = 0.1  # one sample short
+    assert near_standstill(speed, omega_s).tolist() == [False, True, False]
+
+    trained = models[0].features_
+    assert trained.brake_open_ is False  # 150 s of filtered noise 0-4 V comes near standstill
+    moved = trained.for_unit(duty_fit, duty_healthy)
+    assert moved.brake_open_ is True
+    assert ConditionFeatures.from_dict(moved.to_dict()).brake_open_ is True
+
+    unit, _ = units[1]
+    slow = windows(("healthy",), unit.replace(TL=0.5 * unit.TL, omega_s=2.5 * unit.omega_s),
+                   np.full(5000, 0.08), 45)["healthy"]  # a nearly stalled machine whose brake the model misjudges
+    assert np.all(near_standstill(slow[:, :, 2], moved.nominal_.omega_s))
+    load = np.array([n.startswith("load|") for n in moved.feature_names_])
+    k = len(moved.states_)
+    rows = moved.transform_evidence(slow)
+    n = len(moved.feature_names_)
+    assert np.all(rows[:, :n][:, load] == 1.0) and np.all(rows[:, n:2 * n][:, load] == 1.0)
+    assert np.all(rows[:, 2 * n + k:][:, [s.startswith("load_") for s in moved.states_]] == 0.0)
+    judged = copy.copy(moved)
+    judged.brake_open_ = False
+    assert np.max(judged.transform_evidence(slow)[:, :n][:, load]) > 1.5  # the misfit the flag sets aside

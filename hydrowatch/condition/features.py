@@ -44,7 +44,8 @@ from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
 from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_oil_box, oil_box, oil_parts
 from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
-from hydrowatch.condition.unit import UnitFit, identify_unit
+from hydrowatch.condition.standstill import without_load_relation
+from hydrowatch.condition.unit import UnitFit, identify_unit, left_to_prior
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, window_starts
 from hydrowatch.log import event, get_logger
@@ -171,11 +172,12 @@ class ConditionFeatures(EvidenceRows):
         if "healthy" not in windows_by_state:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.unit_: dict[str, Any] = {}
-        self.relief_spread_ = 0.0
+        self.relief_spread_, self.brake_open_ = 0.0, False
         if self.identify:
             unit = identify_unit(L.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
                                  self.viscosity_coefficient)
             p, self.unit_ = unit.parameters, unit.summary()
+            self.brake_open_ = "omega_s" in left_to_prior(unit)
         self.nominal_ = p
         # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
         # the faults that only show under load tie with healthy (ParityRule)
@@ -230,6 +232,7 @@ class ConditionFeatures(EvidenceRows):
             if fault is not None and name is not None:
                 out.levels_[state] = level * level_severity(fault, name, p) / level_severity(fault, name, self.nominal_)
         out.relief_spread_ = float(relief_spread)
+        out.brake_open_ = "omega_s" in left_to_prior(unit)
         out.boxes_ = {s: out._box(s, p, margin=margin) for s in out.states_}
         out.level_boxes_ = {s: out._box(s, p, narrow=True) for s in out.states_}
         w = L.check_windows(healthy, self.window)
@@ -336,8 +339,12 @@ class ConditionFeatures(EvidenceRows):
         """:func:`hydrowatch.condition.estimates.state_ratios` for the first ``sets`` of the box sets (band, level),
         of windows with the oil temperature (``known``) or without it (:meth:`_box_of`)."""
         boxes = (self.boxes_, self.level_boxes_)[:sets]
-        return E.state_ratios(groups, self.nominal_, self.relations_,
-                              [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes])
+        ratios, free = E.state_ratios(groups, self.nominal_, self.relations_,
+                                      [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes])
+        for part in ratios:  # near standstill with ωs left to its prior the load relation is not judged
+            without_load_relation(part, self.feature_names_, self._stalled(groups))
+        return ratios, free
+
 
     def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> E.BoxOf:
         """``box`` as the windows judge it: without the oil temperature its leak ranges widened by the oil's range

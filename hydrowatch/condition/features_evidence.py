@@ -8,6 +8,7 @@ pool of windows can share one severity per state (:mod:`hydrowatch.condition.evi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,7 +18,9 @@ from hydrowatch.condition import layout as L
 from hydrowatch.condition.evidence import EvidenceLayout
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.relief import window_factors
+from hydrowatch.condition.standstill import stalled
 from hydrowatch.plant.faults import FAULTS, parse_state
+from hydrowatch.plant.parameters import PlantParameters
 
 if TYPE_CHECKING:
     from hydrowatch.condition.relief import LoadScale
@@ -35,6 +38,7 @@ class EvidenceRows:
     relations_: tuple[str, ...]
     feature_names_: list[str]
     window: int
+    nominal_: PlantParameters
     if TYPE_CHECKING:  # ConditionFeatures provides these
         def _check_fitted(self) -> None: ...
         def _by_oil(self, windows: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]: ...
@@ -94,8 +98,14 @@ class EvidenceRows:
                                                g.estimates.curvature["relief_spring"], RELIEF_LIMITS)[2]
                         severity[:, j] /= np.where(frame > 0.0, frame, 1.0)
                         weight[:, j] *= frame**2
+        load = np.array([f == "load" for f in faults], dtype=bool)
+        weight[np.ix_(self._stalled(groups), load)] = 0.0  # no load severity where the load relation is not judged
         out[ok] = np.concatenate([band, level, severity, weight], axis=1)
         return out, ok, groups[0].estimates  # the nominal fill comes first (:meth:`_estimates`)
+
+    def _stalled(self, groups: Sequence[E.FillGroup]) -> np.ndarray:
+        """Valid windows whose load relation is not judged (:mod:`hydrowatch.condition.standstill`), shape (m,)."""
+        return stalled(groups, self.nominal_.omega_s, getattr(self, "brake_open_", False))
 
     def _own_faults(self) -> list[str | None]:
         """Each state's own fault, None for healthy or where the sensors cannot test its relation."""

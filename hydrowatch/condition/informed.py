@@ -3,19 +3,21 @@ trained fault levels on the unit (:mod:`hydrowatch.condition.commission`)."""
 
 from __future__ import annotations
 
-from typing import cast
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hydrowatch.condition import parity
-from hydrowatch.condition.features import ConditionFeatures
-from hydrowatch.condition.unit import DEFAULT_PRIOR, PRIOR, UnitFit
+from hydrowatch.condition.unit import INFORMED as INFORMED  # the public names stay here
+from hydrowatch.condition.unit import UnitFit
+from hydrowatch.condition.unit import informed as _informed
+from hydrowatch.condition.unit import left_to_prior as left_to_prior
 from hydrowatch.plant.faults import level_severity, parse_state
 from hydrowatch.plant.parameters import PlantParameters
 
-INFORMED = 0.5
-"""A parameter counts as informed by the recording when its posterior standard deviation is below this share of its
-prior spread (:func:`level_uncertainty`)."""
+if TYPE_CHECKING:
+    from hydrowatch.condition.features import ConditionFeatures
+
 LEAKS = ("pump_leak", "motor_leak", "valve_leak")
 """Faults whose severity is a conductance in units of the reference conductance."""
 
@@ -31,18 +33,6 @@ def levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
     scale = parity.reference_conductance(p)
     return np.array([level_severity(f, lvl, p) * (scale if f in LEAKS else 1.0)
                      for f, lvl in named if f is not None and lvl is not None] or [1.0])
-
-
-def _informed(names: tuple[str, ...], covariance: np.ndarray) -> np.ndarray:
-    """Which of a relation's parameters the recording informs: posterior standard deviation < :data:`INFORMED` × τ."""
-    tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
-    return cast(np.ndarray, np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau)
-
-
-def left_to_prior(fit: UnitFit) -> list[str]:
-    """Identified parameters the recording did not inform (they stay near the trained unit's values)."""
-    return [n for names, covariance in fit.covariance.values()
-            for n, ok in zip(names, _informed(names, covariance)) if not ok]
 
 
 def level_uncertainty(features: ConditionFeatures, fit: UnitFit, step: float = 0.01) -> float:

@@ -12,7 +12,7 @@ weighted residuals white at the fit, yet the unit's own supply 38 above it), so 
 there. This module asks the criterion itself: Pc is held at e^d × its fitted value for each shift d of
 :data:`SHIFTS`, the other valve parameters are fitted again, and the rise of the regularised criterion
 (½ Σ (e_b/σ_b)² + ½ Σ (θ_j/τ_j)², :func:`~hydrowatch.condition.unit._criterion`) is set against the change of the
-trained fault levels (:func:`~hydrowatch.condition.informed.levels`). Where a shift that the criterion hardly
+trained fault levels (:func:`ridge_levels`). Where a shift that the criterion hardly
 notices (:data:`FLAT_RISE`) moves a level by more than half the distance between its warning and alert
 (:func:`level_tolerances`), the recording does not place the levels; where the trained unit's supply (the build
 spread between units: the prior) then places them more than that from the fit, commissioning keeps it
@@ -36,7 +36,6 @@ from typing import NamedTuple
 import numpy as np
 
 from hydrowatch.condition.features import ConditionFeatures
-from hydrowatch.condition.informed import levels
 from hydrowatch.condition.unit import (
     MAX_WINDOWS,
     RELATION_PARAMETERS,
@@ -47,7 +46,8 @@ from hydrowatch.condition.unit import (
     _valid_signals,
     _valve_relation,
 )
-from hydrowatch.plant.faults import parse_state
+from hydrowatch.errors import ParameterError
+from hydrowatch.plant.faults import level_severity, parse_state
 from hydrowatch.plant.parameters import PlantParameters
 
 RIDGE_FAULTS = ("load",)
@@ -79,21 +79,47 @@ class ProfilePoint(NamedTuple):
     level_change: float
 
 
-def level_tolerances(features: ConditionFeatures, faults: Sequence[str] = RIDGE_FAULTS) -> np.ndarray:
-    """Per trained level (:func:`~hydrowatch.condition.informed.levels`' order): half of ln(alert / warning) of its
-    fault on the trained unit, within which a level placed on a unit still tells warning from alert (load 0.31 on
-    seed 2064's trained unit); ∞ for a fault not in ``faults`` or trained at one level only (not asked about)."""
-    named = [n for n in (parse_state(s) for s in features.levels_) if n[0] is not None]
-    values = dict(zip(named, levels(features, features.nominal_)))
-    half = {f: 0.5 * abs(float(np.log(values[(f, "alert")] / values[(f, "warning")])))
-            for f, _ in named if f in faults and (f, "alert") in values and (f, "warning") in values}
-    return np.array([half.get(str(f), np.inf) for f, _ in named] or [np.inf])
+def _ridge_states(features: ConditionFeatures) -> list[tuple[str, str]]:
+    """(fault, level) of each trained state of a :data:`RIDGE_FAULTS` fault, in the features' order."""
+    named = [parse_state(s) for s in features.levels_]
+    return [(f, lvl) for f, lvl in named if f in RIDGE_FAULTS and lvl is not None]
+
+
+def ridge_levels(features: ConditionFeatures, p: PlantParameters) -> np.ndarray:
+    """ln of each :data:`RIDGE_FAULTS` level (:func:`_ridge_states`) on a unit of parameters ``p``
+    (:func:`~hydrowatch.plant.faults.level_severity`); +∞ where the unit reaches no such speed drop at 2 V (a point
+    of the profile far along the ridge can lie there)."""
+    out = []
+    for fault, level in _ridge_states(features):
+        try:
+            out.append(float(np.log(level_severity(fault, level, p))))
+        except ParameterError:
+            out.append(np.inf)
+    return np.array(out)
+
+
+def level_tolerances(features: ConditionFeatures) -> np.ndarray:
+    """Per :data:`RIDGE_FAULTS` level (:func:`ridge_levels`' order): half of ln(alert / warning) of its fault on the
+    trained unit, within which a level placed on a unit still tells warning from alert (load 0.31 on seed 2064's
+    trained unit); ∞ for a fault trained at one level only (not asked about)."""
+    states = _ridge_states(features)
+    values = dict(zip(states, ridge_levels(features, features.nominal_)))
+    half = {f: 0.5 * abs(values[(f, "alert")] - values[(f, "warning")])
+            for f, _ in states if (f, "alert") in values and (f, "warning") in values}
+    return np.array([half.get(f, np.inf) for f, _ in states])
 
 
 def level_change(features: ConditionFeatures, p: PlantParameters, q: PlantParameters) -> float:
     """Largest |ln| ratio of a :data:`RIDGE_FAULTS` level between units ``p`` and ``q``, in :func:`level_tolerances`
-    (> 1: one of them no longer tells that fault's warning from its alert on the other)."""
-    return float(np.max(np.abs(np.log(levels(features, q) / levels(features, p))) / level_tolerances(features)))
+    (> 1: one of them no longer tells that fault's warning from its alert on the other; ∞ where one unit reaches no
+    such level); 0 without a fault asked about."""
+    a, b, tolerance = ridge_levels(features, p), ridge_levels(features, q), level_tolerances(features)
+    if a.size == 0:
+        return 0.0
+    with np.errstate(invalid="ignore"):
+        change = np.abs(a - b) / tolerance
+    change = np.where(np.isinf(a) ^ np.isinf(b), np.inf, np.nan_to_num(change, nan=0.0))
+    return float(np.max(change))
 
 
 def valve_profile(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray,

@@ -130,6 +130,23 @@ class UnitFit:
                 "rms_after": {k: float(f"{v:.4g}") for k, v in self.rms_after.items()}}
 
 
+INFORMED = 0.5
+"""A parameter counts as informed by the recording when its posterior standard deviation is below this share of its
+prior spread (:func:`left_to_prior`, :func:`~hydrowatch.condition.informed.level_uncertainty`)."""
+
+
+def informed(names: tuple[str, ...], covariance: np.ndarray) -> np.ndarray:
+    """Which of a relation's parameters the recording informs: posterior standard deviation < :data:`INFORMED` × τ."""
+    tau = np.array([PRIOR.get(n, DEFAULT_PRIOR) for n in names])
+    return cast(np.ndarray, np.sqrt(np.maximum(np.diag(covariance), 0.0)) < INFORMED * tau)
+
+
+def left_to_prior(fit: UnitFit) -> list[str]:
+    """Identified parameters the recording did not inform (they stay near the trained unit's values)."""
+    return [n for names, covariance in fit.covariance.values()
+            for n, ok in zip(names, informed(names, covariance)) if not ok]
+
+
 @dataclass
 class _Signals:
     """SI signals of the healthy windows, (m, n) each; leak (m, 1)."""
