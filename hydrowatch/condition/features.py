@@ -341,8 +341,9 @@ class ConditionFeatures(EvidenceRows):
         boxes = (self.boxes_, self.level_boxes_)[:sets]
         ratios, free = E.state_ratios(groups, self.nominal_, self.relations_,
                                       [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes])
-        for part in ratios:  # near standstill with ωs left to its prior the load relation is not judged
-            without_load_relation(part, self.feature_names_, self._stalled(groups))
+        stalled = self._stalled(groups)  # near standstill with ωs left to its prior the load relation is not judged
+        for part in ratios:
+            without_load_relation(part, self.feature_names_, stalled)
         return ratios, free
 
 

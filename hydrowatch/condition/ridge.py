@@ -37,14 +37,13 @@ import numpy as np
 
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.unit import (
-    MAX_WINDOWS,
     RELATION_PARAMETERS,
     UnitFit,
     _criterion,
     _fit,
-    _Signals,
     _valid_signals,
     _valve_relation,
+    valve_windows,
 )
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.faults import level_severity, parse_state
@@ -133,8 +132,7 @@ def valve_profile(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray
     if "Pc" not in names or len(names) < 2:
         return []
     s = _valid_signals(windows, features.sensors, features.viscosity_coefficient, "the relief's profile")
-    pick = np.unique(np.linspace(0, s.flow.shape[0] - 1, min(MAX_WINDOWS, s.flow.shape[0])).round().astype(int))
-    relation = _valve_relation(_Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick]))
+    relation = _valve_relation(valve_windows(s))
     p = fit.parameters
     base = p.replace(**{n: getattr(features.nominal_, n) for n in names})  # the fit's start: load and motor fitted
     cost, _ = _criterion(names, base, relation)

@@ -357,9 +357,7 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     plan: list[tuple[str, set[str], Callable[[_Signals], Relation], _Signals]] = [
         ("load", {"speed", "torque"}, lambda x: (_load_residual(x), None), s),
         ("motor", {"flow", "speed", "torque"}, lambda x: (_motor_residual(x), None), s)]
-    pick = np.unique(np.linspace(0, s.flow.shape[0] - 1, min(MAX_WINDOWS, s.flow.shape[0])).round().astype(int))
-    few = _Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick])
-    plan.append(("valve", {"flow", "speed", "torque"}, _valve_relation, few))
+    plan.append(("valve", {"flow", "speed", "torque"}, _valve_relation, valve_windows(s)))
     for relation, needs, make, signals in plan:
         if not needs <= have:
             continue
@@ -375,6 +373,12 @@ def identify_unit(windows: np.ndarray, nominal: PlantParameters | None = None, s
     rms = {f"rms_{r}": f"{fit.rms_before[r]:.3g}->{fit.rms_after[r]:.3g}" for r in fit.rms_before}
     event(_log, "unit identified", logging.INFO, windows=result.windows, **rms)
     return result
+
+
+def valve_windows(s: _Signals) -> _Signals:
+    """At most :data:`MAX_WINDOWS` windows spread evenly over ``s``: what the valve relation is fitted on."""
+    pick = np.unique(np.linspace(0, s.flow.shape[0] - 1, min(MAX_WINDOWS, s.flow.shape[0])).round().astype(int))
+    return _Signals(s.voltage[pick], s.flow[pick], s.speed[pick], s.torque[pick], s.leak[pick])
 
 
 def valve_error(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
