@@ -64,3 +64,37 @@ def test_trimming_gives_back_what_arrows_allocator_kept() -> None:
     assert returned is not None and returned > 100.0, (pa.default_memory_pool().backend_name, freed - start)
     assert resident_mb() - start < 30.0
     del pin
+
+
+@pytest.mark.skipif(heap._MALLINFO2 is None or resident_mb() is None,
+                    reason="the C library has no mallinfo2 (glibc < 2.33), or /proc is absent")
+def test_the_memory_figures_say_which_allocator_holds_what() -> None:
+    import pyarrow as pa
+
+    trim_heap()
+    before = heap.heap_stats()
+    blocks = [b"\x01" * (64 * 1024) for _ in range(800)]  # 50 MB from glibc (above pymalloc's 512 B)
+    arrow = [pa.allocate_buffer(64 * 1024) for _ in range(800)]  # 50 MB from Arrow's pool
+    held = heap.heap_stats()
+    glibc = (held["glibc_in_use_mb"] + held["glibc_mmap_mb"]) - (before["glibc_in_use_mb"] + before["glibc_mmap_mb"])
+    assert 45.0 < glibc < 60.0
+    assert 45.0 < held["arrow_mb"] - before["arrow_mb"] < 55.0
+    assert held["rss_mb"] - before["rss_mb"] > 90.0
+    assert held["python_blocks"] - before["python_blocks"] >= 800
+    del blocks, arrow
+    freed = heap.heap_stats()
+    assert freed["arrow_mb"] - before["arrow_mb"] < 1.0
+    assert freed["glibc_in_use_mb"] - before["glibc_in_use_mb"] < 5.0
+
+
+@needs_trim
+def test_the_trimmer_logs_what_the_process_holds_and_what_trimming_cost(caplog: pytest.LogCaptureFixture) -> None:
+    stop = threading.Event()
+    with caplog.at_level("INFO", logger="hydrowatch.bus.heap"), \
+            HeapTrimmer(stop, interval=0.01, stats_interval=0.1) as trimmer:
+        time.sleep(0.45)
+    logged = [r.fields for r in caplog.records if r.getMessage() == "memory"]  # type: ignore[attr-defined]
+    assert 3 <= len(logged) <= 4
+    assert sum(f["trims"] for f in logged) <= trimmer.trims
+    assert {"rss_mb", "glibc_in_use_mb", "arrow_mb", "python_blocks"} <= set(logged[0])
+    assert 0.0 < logged[0]["trim_ms_mean"] <= logged[0]["trim_ms_max"] < 100.0
