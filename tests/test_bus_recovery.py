@@ -38,6 +38,23 @@ def test_history_keeps_the_last_chunks_and_answers_ranges():
         ChunkHistory(depth=0)
 
 
+def test_history_reuses_its_slots_and_grows_a_key_once_for_a_larger_chunk():
+    history, key = ChunkHistory(depth=4), "hydro/f/m0/sensors"
+    sent = [payload(i) for i in range(10)]
+    for i, p in enumerate(sent):
+        history.add(key, i * 0.1, p, sent_ns=1000 + i)
+    kept = history.nbytes
+    assert kept == 4 * (-(-int(len(sent[0]) * 1.03125) // 64) * 64)  # 4 slots of the chunk size and a 32nd
+    for i, p in enumerate(sent):  # the same again, later: nothing allocated
+        history.add(key, 1.0 + i * 0.1, p, sent_ns=2000 + i)
+    assert history.nbytes == kept
+    assert history.between(key, 1.6, 2.0) == [(sent[i], 2000 + i) for i in range(6, 10)]
+    bigger = sent[9] + b"\x00" * 2000  # a chunk larger than the slot: the key's kept chunks move to larger slots
+    history.add(key, 2.0, bigger, sent_ns=3000)
+    assert history.nbytes > kept
+    assert history.between(key, 0.0, 3.0) == [(sent[7], 2007), (sent[8], 2008), (sent[9], 2009), (bigger, 3000)]
+
+
 def test_missed_chunks_are_recovered_once_and_an_unanswered_gap_is_counted(caplog):
     port = free_port()
     keys = {m: key("f", m, "sensors") for m in MACHINES}

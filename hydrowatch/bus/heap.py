@@ -53,7 +53,8 @@ TRIM_INTERVAL_S = 10.0
 """Seconds between two trims. One trim that gave back 130–230 MB took 17–25 ms. Between two trims a scorer's
 allocations walk through the free space its arenas keep and make it resident again: in the sixth 1-hour soak
 (2026-11-28, trims once a minute) a scorer's RSS fell 14–20 MB at a trim and was back within minutes, while glibc's
-bytes in use stayed flat (+0.2 MB in 10 minutes); a shorter period keeps the resident set nearer what is held."""
+bytes in use stayed flat (+0.2 MB in 10 minutes). Every 10 s (the seventh soak) a trim took 0.8–1.0 ms (at most
+1.9); what the scorers still gained was free space inside pages in use, which no trim returns (docs/bus.md)."""
 
 _ACTIVE = threading.Lock()
 """Held by the one trimmer running in this process (``hydrowatch up`` runs several services in one)."""
