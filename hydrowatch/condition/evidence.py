@@ -49,7 +49,6 @@ not flush the history. :class:`EvidenceSmoother` is the streaming form (river st
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -291,25 +290,40 @@ class EvidenceSmoother:
     def __init__(self, *, n_windows: int = 6, layout: EvidenceLayout | None = None) -> None:
         self.n_windows = _check_n(n_windows)
         self.layout = layout
-        self._history: deque[np.ndarray] = deque(maxlen=self.n_windows)
+        self._ring: np.ndarray | None = None
+        """(n_windows, n_features), allocated at the first valid row and reused in place: rows kept as arrays of their
+        own, each freed n_windows later among newer ones, leave holes in the heap (docs/bus.md, the seventh soak)."""
+        self._next = 0
+        self._count = 0
 
     def update(self, features: np.ndarray) -> None:
         """Add one window's ratios, shape (n_features,); an invalid (non-finite) row is skipped. Returns nothing."""
         row = np.asarray(features, dtype=np.float64).reshape(-1)
-        if self._history and row.shape != self._history[0].shape:
-            raise DataError(f"features must have {self._history[0].size} values per window. Got {row.size}.")
+        if self._ring is not None and row.size != self._ring.shape[1]:
+            raise DataError(f"features must have {self._ring.shape[1]} values per window. Got {row.size}.")
         if np.all(np.isfinite(row)):
-            self._history.append(row)
+            if self._ring is None:
+                self._ring = np.empty((self.n_windows, row.size))
+            self._ring[self._next] = row
+            self._next = (self._next + 1) % self.n_windows
+            self._count = min(self._count + 1, self.n_windows)
+
+    def _rows(self) -> np.ndarray:
+        """The pooled rows in arrival order, (count, n_features)."""
+        assert self._ring is not None
+        return self._ring[(np.arange(self._count) + self._next - self._count) % self.n_windows]
 
     def get(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(geometric mean, arithmetic mean) of the pooled windows, each (n_features,), or None before any."""
-        if not self._history:
+        if not self._count:
             return None
-        return _pool(np.stack(self._history), self.layout)
+        return _pool(self._rows(), self.layout)
 
     def latest(self) -> np.ndarray | None:
-        """The last valid window's row as given to :meth:`update`, or None before any."""
-        return self._history[-1] if self._history else None
+        """The last valid window's row as given to :meth:`update` (a copy), or None before any."""
+        if not self._count or self._ring is None:
+            return None
+        return self._ring[(self._next - 1) % self.n_windows].copy()
 
     def __len__(self) -> int:
-        return len(self._history)
+        return self._count
