@@ -55,6 +55,7 @@ from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
 from hydrowatch.condition.estimates import ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
+from hydrowatch.condition.ring import Ring
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
 from hydrowatch.plant.parameters import PlantParameters
 
@@ -350,11 +351,9 @@ class DegradationStream:
 
     def __init__(self, features: ConditionFeatures, pool: int = ATTRIBUTION_WINDOWS) -> None:
         self.features, self.pool = features, pool
-        self._fits = np.empty((pool, len(parity.VALVE_HYPOTHESES), 3))
-        """Ring of each valid window's ŝ, MSE and c per valve hypothesis, reused in place (per-window arrays of their
-        own, freed ``pool`` windows later among newer ones, leave holes in the heap: docs/bus.md, the seventh soak)."""
-        self._loads = np.empty(pool)
-        self._next_fit = self._fits_held = self._next_load = self._loads_held = 0
+        self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
+        """Each valid window's ŝ, MSE and c per valve hypothesis."""
+        self._loads = Ring(pool)
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
                curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
@@ -364,18 +363,14 @@ class DegradationStream:
         f = self.features
         blamed, excess = np.array([-1]), None
         if "valve" in f.relations_:
-            self._fits[self._next_fit] = [[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES]
-            self._next_fit, self._fits_held = (self._next_fit + 1) % self.pool, min(self._fits_held + 1, self.pool)
-            order = (np.arange(self._fits_held) + self._next_fit - self._fits_held) % self.pool
-            ring = np.moveaxis(self._fits[order], 0, -1)  # (hypothesis, ŝ / MSE / c, window)
+            self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
+            ring = np.moveaxis(self._fits.rows(), 0, -1)  # (hypothesis, ŝ / MSE / c, window)
             misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
         brake = np.ones(1)
         if "load" in f.relations_:
-            self._loads[self._next_load] = float(severity["load"])
-            self._next_load, self._loads_held = (self._next_load + 1) % self.pool, min(self._loads_held + 1, self.pool)
-            order = (np.arange(self._loads_held) + self._next_load - self._loads_held) % self.pool
-            brake = np.array([brake_factor(self._loads[order])])  # the ring holds the pool's last windows
+            self._loads.add(float(severity["load"]))
+            brake = np.array([brake_factor(self._loads.rows())])  # the ring holds the pool's last windows
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed, excess, brake)

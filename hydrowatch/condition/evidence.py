@@ -53,6 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import DataError, ParameterError
 
 SEVERITY_TOLERANCE = 0.25
@@ -290,40 +291,28 @@ class EvidenceSmoother:
     def __init__(self, *, n_windows: int = 6, layout: EvidenceLayout | None = None) -> None:
         self.n_windows = _check_n(n_windows)
         self.layout = layout
-        self._ring: np.ndarray | None = None
-        """(n_windows, n_features), allocated at the first valid row and reused in place: rows kept as arrays of their
-        own, each freed n_windows later among newer ones, leave holes in the heap (docs/bus.md, the seventh soak)."""
-        self._next = 0
-        self._count = 0
+        self._ring: Ring | None = None
+        """The pooled rows (:class:`~hydrowatch.condition.ring.Ring`), made at the first valid row."""
 
     def update(self, features: np.ndarray) -> None:
         """Add one window's ratios, shape (n_features,); an invalid (non-finite) row is skipped. Returns nothing."""
         row = np.asarray(features, dtype=np.float64).reshape(-1)
-        if self._ring is not None and row.size != self._ring.shape[1]:
-            raise DataError(f"features must have {self._ring.shape[1]} values per window. Got {row.size}.")
+        if self._ring is not None and row.shape != self._ring.row_shape:
+            raise DataError(f"features must have {self._ring.row_shape[0]} values per window. Got {row.size}.")
         if np.all(np.isfinite(row)):
             if self._ring is None:
-                self._ring = np.empty((self.n_windows, row.size))
-            self._ring[self._next] = row
-            self._next = (self._next + 1) % self.n_windows
-            self._count = min(self._count + 1, self.n_windows)
-
-    def _rows(self) -> np.ndarray:
-        """The pooled rows in arrival order, (count, n_features)."""
-        assert self._ring is not None
-        return self._ring[(np.arange(self._count) + self._next - self._count) % self.n_windows]
+                self._ring = Ring(self.n_windows, row.shape)
+            self._ring.add(row)
 
     def get(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(geometric mean, arithmetic mean) of the pooled windows, each (n_features,), or None before any."""
-        if not self._count:
+        if self._ring is None or not len(self._ring):
             return None
-        return _pool(self._rows(), self.layout)
+        return _pool(self._ring.rows(), self.layout)
 
     def latest(self) -> np.ndarray | None:
         """The last valid window's row as given to :meth:`update` (a copy), or None before any."""
-        if not self._count or self._ring is None:
-            return None
-        return self._ring[(self._next - 1) % self.n_windows].copy()
+        return self._ring.latest() if self._ring is not None and len(self._ring) else None
 
     def __len__(self) -> int:
-        return self._count
+        return 0 if self._ring is None else len(self._ring)
