@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import sys
 import threading
 import time
@@ -58,6 +57,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_bus_router_faults import add_topology_arguments, run_topology, training_set  # noqa: E402
 
 from hydrowatch.bus import BusSettings, Subscriber, open_session, wait_alive  # noqa: E402
+from hydrowatch.bus.heap import holder_changes, memory_events  # noqa: E402
 from hydrowatch.io.codec import check_payload  # noqa: E402
 from hydrowatch.io.mcap_io import expected_schema, iter_records  # noqa: E402
 from hydrowatch.recording import SAMPLE_RATE_HZ  # noqa: E402
@@ -300,45 +300,26 @@ def memory_table(args: argparse.Namespace, usage: UsageSampler, began: float, en
               f"{n} {v}" for n, v in verdicts.items() if v not in ("flat", "bounded"))))
 
 
-MEMORY_EVENT = re.compile(r"^(\S+) info hydrowatch\.bus\.heap memory (.*)$")
-HOLDERS = ("rss_mb", "rss_anon_mb", "rss_shared_mb", "glibc_in_use_mb", "glibc_free_mb", "glibc_mmap_mb", "arrow_mb",
-           "python_blocks")
-
-
-def memory_events(log: Path) -> list[tuple[float, dict[str, float]]]:
-    """The ``memory`` events a service logged (hydrowatch.bus.heap.heap_stats, every 10 minutes): (Unix time, s;
-    figures)."""
-    found = []
-    for line in log.read_text(errors="replace").splitlines():
-        if (match := MEMORY_EVENT.match(line)) is not None:
-            when = time.mktime(time.strptime(match.group(1), "%Y-%m-%dT%H:%M:%S"))
-            found.append((when, {k: float(v) for k, v in (f.split("=", 1) for f in match.group(2).split())}))
-    return found
-
-
 def holders_table(logs: Path, after_s: float, ended_s: float) -> None:
     """What each service holds, from its own ``memory`` events after the warm-up (first → last, and per hour): which
-    allocator, if any, holds what its resident set gained."""
+    allocator, if any, holds what its resident set gained (hydrowatch.bus.heap.holder_changes)."""
     print("\nwhat each service holds (its own 'memory' events after the warm-up, first -> last [per hour]; MB, "
           "python_blocks in thousands):")
     for name in SERVICES:
         log = logs / f"{name}.log"
-        logged = memory_events(log) if log.exists() else []
+        logged = memory_events(log.read_text(errors="replace")) if log.exists() else []
         events = [(t, e) for t, e in logged if after_s <= t <= ended_s + 60.0]
         if not logged:  # not a hydrowatch service (router, MLflow, PostgreSQL)
             continue
         if len(events) < 2:
             print(f"{name:10} fewer than two memory events after the warm-up ({len(logged)} in all)")
             continue
-        (t0, first), (t1, last) = events[0], events[-1]
-        hours = (t1 - t0) / 3600.0
         cells = []
-        for k in HOLDERS:
-            if k in first and k in last:
-                scale = 1e-3 if k == "python_blocks" else 1.0
-                a, b = first[k] * scale, last[k] * scale
-                cells.append(f"{k.removesuffix('_mb')} {a:.1f} -> {b:.1f} [{(b - a) / hours:+.1f}]")
-        print(f"{name:10} {len(events)} events over {hours * 60:.0f} min: " + ", ".join(cells))
+        for k, (a, b, per_hour) in holder_changes(events).items():
+            scale = 1e-3 if k == "python_blocks" else 1.0
+            cells.append(f"{k.removesuffix('_mb')} {a * scale:.1f} -> {b * scale:.1f} [{per_hour * scale:+.1f}]")
+        minutes = (events[-1][0] - events[0][0]) / 60.0
+        print(f"{name:10} {len(events)} events over {minutes:.0f} min: " + ", ".join(cells))
 
 
 def recordings_line(args: argparse.Namespace, totals: Counter[str]) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -98,3 +99,30 @@ def test_the_trimmer_logs_what_the_process_holds_and_what_trimming_cost(caplog: 
     assert sum(f["trims"] for f in logged) <= trimmer.trims
     assert {"rss_mb", "glibc_in_use_mb", "arrow_mb", "python_blocks"} <= set(logged[0])
     assert 0.0 < logged[0]["trim_ms_mean"] <= logged[0]["trim_ms_max"] < 100.0
+
+
+def test_a_services_memory_events_are_read_back_from_its_log_with_each_holders_change_per_hour() -> None:
+    from hydrowatch.log import _KeyValueFormatter
+
+    formatter = _KeyValueFormatter()
+    lines = []
+    for minute, in_use in ((0, 100.0), (30, 101.5), (60, 103.0)):
+        record = heap.log.makeRecord(heap.log.name, logging.INFO, __file__, 0, heap.MEMORY_EVENT, None, None,
+                                     extra={"fields": {"rss_mb": 400.0 + minute, "glibc_in_use_mb": in_use,
+                                                       "python_blocks": 1.29e6, "trims": 30}})
+        record.created = 1.8e9 + 60.0 * minute
+        lines.append(formatter.format(record))
+    lines.insert(1, formatter.format(heap.log.makeRecord(heap.log.name, logging.INFO, __file__, 0, "heap trimmed",
+                                                         None, None, extra={"fields": {"returned_mb": 3.0}})))
+    events = heap.memory_events("\n".join(lines) + "\nnot a log line\n")
+    assert [round(t - events[0][0]) for t, _ in events] == [0, 1800, 3600]
+    assert events[1][1] == {"rss_mb": 430.0, "glibc_in_use_mb": 101.5, "python_blocks": 1.29e6, "trims": 30.0}
+    changes = heap.holder_changes(events)
+    assert set(changes) == {"rss_mb", "glibc_in_use_mb", "python_blocks"}  # the trims' count is no holder
+    assert changes["rss_mb"] == pytest.approx((400.0, 460.0, 60.0))
+    assert changes["glibc_in_use_mb"] == pytest.approx((100.0, 103.0, 3.0))
+    assert changes["python_blocks"][2] == 0.0
+    with pytest.raises(ValueError, match="two memory events"):
+        heap.holder_changes(events[:1])
+    with pytest.raises(ValueError, match="time order"):
+        heap.holder_changes(events[::-1])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import weakref
 
 import numpy as np
 import pytest
@@ -110,6 +111,30 @@ def test_stream_matches_batch_pooling(trained):
     assert batch[2].state == "invalid"
     assert stream.get().state == batch[-1].state == "pump_leak_warning"
     assert stream.get().probabilities == pytest.approx(batch[-1].probabilities)
+
+
+def test_a_stream_keeps_copies_of_the_batched_flags_it_is_given_not_the_batch(trained):
+    """A scorer hands each machine a row of one batched array of leads; the pool must not keep that array alive (a
+    view in a deque held every batch's array for a pool's windows, and their frees fragmented the heap)."""
+    train, model = trained
+    w = train["pump_leak_warning"][:4]
+    rows = model.features_.transform_evidence(w)
+    width = 2 * len(model.features_.feature_names_)
+    stream = ConditionStream(model, n_windows=3)
+    batches = []
+    for row, point in zip(rows, operating_points(w)):
+        batch = np.repeat(model.alone_leads(row[None, :width]), 500, axis=0)  # as many machines' flags
+        batches.append(weakref.ref(batch))
+        stream.update_features(row, float(point), False, batch[7])
+        del batch
+    assert [b() for b in batches] == [None] * 4
+    again = ConditionStream(model, n_windows=3)
+    for row in w:
+        again.update(row)
+    got, want = stream.evidence(), again.evidence()
+    assert got[3:5] == want[3:5] == (3, 0)
+    np.testing.assert_array_equal(got[5], want[5])
+    np.testing.assert_array_equal(got[0], want[0])
 
 
 def test_pooled_excess_is_saved_and_older_directories_load(trained, tmp_path):

@@ -36,6 +36,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import re
 import sys
 import threading
 import time
@@ -48,6 +49,13 @@ log = get_logger(__name__)
 
 STATS_INTERVAL_S = 300.0
 """Seconds between two ``memory`` events."""
+
+MEMORY_EVENT = "memory"
+"""The message of the event that :class:`HeapTrimmer` logs with :func:`heap_stats`' figures."""
+
+HOLDERS = ("rss_mb", "rss_anon_mb", "rss_shared_mb", "glibc_in_use_mb", "glibc_free_mb", "glibc_mmap_mb", "arrow_mb",
+           "python_blocks")
+"""The figures of :func:`heap_stats`, in the order a table shows them."""
 
 TRIM_INTERVAL_S = 10.0
 """Seconds between two trims. One trim that gave back 130–230 MB took 17–25 ms. Between two trims a scorer's
@@ -182,7 +190,7 @@ class HeapTrimmer:
                 if returned is not None and returned >= 1.0:
                     event(log, "heap trimmed", logging.DEBUG, returned_mb=round(returned, 1))
                 if time.monotonic() - logged >= self.stats_interval:
-                    event(log, "memory", logging.INFO, **heap_stats(), trims=len(took),
+                    event(log, MEMORY_EVENT, logging.INFO, **heap_stats(), trims=len(took),
                           trim_ms_mean=round(1e3 * sum(took) / len(took), 2), trim_ms_max=round(1e3 * max(took), 2))
                     logged, took = time.monotonic(), []
         finally:
@@ -199,3 +207,27 @@ class HeapTrimmer:
         self._done.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+
+
+def memory_events(text: str) -> list[tuple[float, dict[str, float]]]:
+    """The ``memory`` events in a service's log (hydrowatch.log's ``key=value`` lines, INFO): (Unix time of the line,
+    s, read in local time as the log writes it; its figures). Other lines are skipped."""
+    line_of = re.compile(rf"^(\S+) info {re.escape(log.name)} {MEMORY_EVENT} (.*)$")
+    found = []
+    for line in text.splitlines():
+        if (match := line_of.match(line)) is not None:
+            when = time.mktime(time.strptime(match.group(1), "%Y-%m-%dT%H:%M:%S"))
+            found.append((when, {k: float(v) for k, v in (f.split("=", 1) for f in match.group(2).split())}))
+    return found
+
+
+def holder_changes(events: list[tuple[float, dict[str, float]]]) -> dict[str, tuple[float, float, float]]:
+    """Per figure of :data:`HOLDERS` present in the first and the last of ``events`` (at least two, time-ordered):
+    (first, last, change per hour) — which allocator, if any, holds what a resident set gained between them."""
+    if len(events) < 2:
+        raise ValueError(f"holder_changes needs two memory events or more, got {len(events)}")
+    (t0, first), (t1, last) = events[0], events[-1]
+    hours = (t1 - t0) / 3600.0
+    if hours <= 0:
+        raise ValueError(f"memory events not in time order: first at {t0}, last at {t1}")
+    return {k: (first[k], last[k], (last[k] - first[k]) / hours) for k in HOLDERS if k in first and k in last}

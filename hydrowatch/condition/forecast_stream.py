@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition.forecast import Forecast, forecast_alert
+from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.faults import FAULTS
 
@@ -45,18 +46,14 @@ class ForecastStream:
             raise ParameterError(f"capacity must be an integer >= 1 (windows of history). Got {capacity!r}; "
                                  f"{HISTORY_WINDOWS} (two hours of 5 s windows) is the default.")
         self.capacity = int(capacity)
-        self._t = np.empty(self.capacity)
-        self._index = np.empty((self.capacity, len(FAULTS)), dtype=np.float32)
-        self._next = 0
-        """Ring position of the next window."""
-        self._count = 0
-        """Windows held (≤ capacity)."""
+        self._t = Ring(self.capacity)
+        self._index = Ring(self.capacity, (len(FAULTS),), np.float32)
         self._seen: set[str] = set()
         """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
         with a finite value in the file)."""
 
     def __len__(self) -> int:
-        return self._count
+        return len(self._t)
 
     @property
     def nbytes(self) -> int:
@@ -74,15 +71,12 @@ class ForecastStream:
             self._seen.add(fault)
             if entry.get("measured", True):
                 row[j] = entry["value"]
-        self._t[self._next] = start_s
-        self._index[self._next] = row
-        self._next = (self._next + 1) % self.capacity
-        self._count = min(self._count + 1, self.capacity)
+        self._t.add(start_s)
+        self._index.add(row)
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """The windows held in arrival order: start times (n,), s, and indices (n, len(FAULTS)), float64."""
-        order = (np.arange(self._count) + (self._next - self._count)) % self.capacity
-        return self._t[order], self._index[order].astype(np.float64)
+        return self._t.rows(), self._index.rows().astype(np.float64)
 
     def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
         """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and

@@ -7,11 +7,11 @@ heap that no trim returns (docs/bus.md, the seventh soak); a ring's one array do
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, DTypeLike
 
 
 class Ring:
-    """The last ``capacity`` rows of shape ``shape`` (float64), oldest first in :meth:`rows`.
+    """The last ``capacity`` rows of shape ``shape``, oldest first in :meth:`rows`.
 
     Parameters
     ----------
@@ -19,15 +19,22 @@ class Ring:
         Rows kept.
     shape : tuple of int
         Shape of one row (``()`` for scalars).
+    dtype : numpy dtype, default float64
+        What a row holds (a row added is cast to it).
     """
 
-    def __init__(self, capacity: int, shape: tuple[int, ...] = ()) -> None:
-        self._data = np.empty((int(capacity), *shape))
+    def __init__(self, capacity: int, shape: tuple[int, ...] = (), dtype: DTypeLike = np.float64) -> None:
+        self._data = np.empty((int(capacity), *shape), dtype=dtype)
         self._next = 0
         self._count = 0
 
     def __len__(self) -> int:
         return self._count
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the ring's array (held whatever its fill)."""
+        return int(self._data.nbytes)
 
     @property
     def row_shape(self) -> tuple[int, ...]:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
 
 from hydrowatch.condition.evidence import EvidenceSmoother, operating_points, supported_states
 from hydrowatch.condition.model import ConditionModel
+from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import NotFittedError
 from hydrowatch.verdict import Verdict
 
@@ -55,9 +55,11 @@ class ConditionStream:
         self.n_windows = n_windows
         self.temperature = temperature
         self._smoother = EvidenceSmoother(n_windows=n_windows, layout=model.features_.evidence_layout(temperature))
-        self._alone: deque[bool] = deque(maxlen=n_windows)
-        self._leads: deque[np.ndarray] = deque(maxlen=n_windows)
-        self._points: deque[float] = deque(maxlen=n_windows)
+        # Rings allocated once, not a deque of per-window arrays: a scorer's ``leads`` rows were views that kept each
+        # batch's whole array alive for n_windows windows (hydrowatch.condition.ring).
+        self._alone = Ring(n_windows, (), bool)
+        self._leads = Ring(n_windows, (len(model.decision_.classes_),), bool)
+        self._points = Ring(n_windows)
 
     def update(self, window: np.ndarray) -> None:
         """Add one raw window, shape (window, 4 or 5; with or without the temperature as the stream was made).
@@ -79,10 +81,9 @@ class ConditionStream:
             width = 2 * len(self.model.features_.feature_names_)
             if alone_unknown is None:
                 alone_unknown = bool(self.model.alone_unknown(row[None, :width])[0])
-            self._alone.append(bool(alone_unknown))
-            self._leads.append(self.model.alone_leads(row[None, :width])[0] if leads is None
-                               else np.asarray(leads, dtype=bool))
-            self._points.append(float(point))
+            self._alone.add(bool(alone_unknown))
+            self._leads.add(self.model.alone_leads(row[None, :width])[0] if leads is None else leads)
+            self._points.add(float(point))
 
     def evidence(self) -> Evidence | None:
         """What :meth:`get` judges: the decision's and the open set's pooled scores and the last valid window's
@@ -97,10 +98,10 @@ class ConditionStream:
         if pooled is None or latest is None:
             return None
         current = latest[: pooled[0].size]
-        supported = supported_states(np.stack(self._leads), np.array(self._points))
+        supported = supported_states(self._leads.rows(), self._points.rows())
         if self.n_windows == 1:
-            return current, current, current, 1, int(self._alone[-1]), supported
-        return pooled[0], pooled[1], current, len(self._smoother), sum(self._alone), supported
+            return current, current, current, 1, int(self._alone.latest()), supported
+        return pooled[0], pooled[1], current, len(self._smoother), int(self._alone.rows().sum()), supported
 
     def get(self) -> Verdict | None:
         """The verdict of the pooled windows, or None before the first valid window."""
