@@ -20,7 +20,9 @@ service in one process, ``recordings/diag/mem_probe*.py``) grew outside glibc's 
 
 :class:`HeapTrimmer` gives back both every :data:`TRIM_INTERVAL_S` from a daemon thread while a service runs
 (:func:`hydrowatch.bus.service.run_service`), so its RSS follows what it holds: ``malloc_trim(0)`` where the C library
-has it (not musl or macOS), and Arrow's ``release_unused()``.
+has it (not musl or macOS), and Arrow's ``release_unused()``. It first fixes glibc's mmap threshold
+(:data:`MMAP_THRESHOLD_BYTES`), so that large blocks are mapped on their own and given back when freed instead of
+widening the arenas.
 
 **What a process holds** (:func:`heap_stats`): every :data:`STATS_INTERVAL_S` the trimmer logs one ``memory`` event
 (INFO) that splits the resident set into what the allocators hold and what they keep: glibc's bytes in use and free
@@ -64,6 +66,13 @@ allocations walk through the free space its arenas keep and make it resident aga
 bytes in use stayed flat (+0.2 MB in 10 minutes). Every 10 s (the seventh soak) a trim took 0.8–1.0 ms (at most
 1.9); what the scorers still gained was free space inside pages in use, which no trim returns (docs/bus.md)."""
 
+MMAP_THRESHOLD_BYTES = 128 * 1024
+"""Allocations at least this large get pages of their own (``mmap``), given back whole when freed: glibc's initial
+threshold, made fixed (:func:`fix_mmap_threshold`). Left to itself glibc raises the threshold to the size of every
+mapped block freed (up to 32 MiB), after which a scorer's batch arrays of that size are carved from its arenas, which
+grow to the largest batch so far and leave holes between the small objects allocated meanwhile (the eighth soak's
+scorers: glibc's bytes in use flat, the free space in its arenas rising in steps; docs/bus.md)."""
+
 _ACTIVE = threading.Lock()
 """Held by the one trimmer running in this process (``hydrowatch up`` runs several services in one)."""
 
@@ -77,6 +86,20 @@ def _malloc_trim() -> Callable[[int], int] | None:
 
 
 _TRIM = _malloc_trim()
+
+_M_MMAP_THRESHOLD = -3
+"""mallopt's parameter number of the mmap threshold (malloc.h)."""
+
+
+def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Fix glibc's mmap threshold at ``nbytes`` (:data:`MMAP_THRESHOLD_BYTES`): larger blocks are mapped on their own
+    from now on, whatever was freed before. Process-wide. False where the C library has no ``mallopt`` or refuses."""
+    name = ctypes.util.find_library("c")
+    try:
+        mallopt = getattr(ctypes.CDLL(name), "mallopt", None) if name else None
+    except OSError:
+        return False
+    return bool(mallopt is not None and mallopt(_M_MMAP_THRESHOLD, int(nbytes)) == 1)
 
 
 class _MallInfo2(ctypes.Structure):
@@ -162,9 +185,10 @@ def trim_heap() -> float | None:
 
 
 class HeapTrimmer:
-    """``with HeapTrimmer(stop):`` trims the heap every ``interval`` s (:func:`trim_heap`) until the block ends or
-    ``stop`` is set, and logs a ``memory`` event (:func:`heap_stats`, with the trims' count and time since the last
-    one) every ``stats_interval`` s. A second trimmer in the same process does nothing while the first runs.
+    """``with HeapTrimmer(stop):`` fixes glibc's mmap threshold (:func:`fix_mmap_threshold`), trims the heap every
+    ``interval`` s (:func:`trim_heap`) until the block ends or ``stop`` is set, and logs a ``memory`` event
+    (:func:`heap_stats`, with the trims' count and time since the last one) every ``stats_interval`` s. A second trimmer
+    in the same process does nothing while the first runs.
 
     Attributes
     ----------
@@ -198,6 +222,8 @@ class HeapTrimmer:
 
     def __enter__(self) -> HeapTrimmer:
         if self.interval > 0 and _ACTIVE.acquire(blocking=False):
+            fixed = fix_mmap_threshold()
+            event(log, "allocator", logging.DEBUG, mmap_threshold_fixed=fixed, mmap_threshold=MMAP_THRESHOLD_BYTES)
             self._thread = threading.Thread(target=self._run, name="heap-trim", daemon=True)
             self._thread.start()
         return self
