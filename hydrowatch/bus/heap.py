@@ -77,15 +77,17 @@ _ACTIVE = threading.Lock()
 """Held by the one trimmer running in this process (``hydrowatch up`` runs several services in one)."""
 
 
-def _malloc_trim() -> Callable[[int], int] | None:
+def _c_library() -> ctypes.CDLL | None:
+    """The C library, loaded once (None where it cannot be found or loaded)."""
     name = ctypes.util.find_library("c")
     try:
-        return getattr(ctypes.CDLL(name), "malloc_trim", None) if name else None
+        return ctypes.CDLL(name) if name else None
     except OSError:
         return None
 
 
-_TRIM = _malloc_trim()
+_LIBC = _c_library()
+_TRIM: Callable[[int], int] | None = getattr(_LIBC, "malloc_trim", None)
 
 _M_MMAP_THRESHOLD = -3
 """mallopt's parameter number of the mmap threshold (malloc.h)."""
@@ -94,11 +96,7 @@ _M_MMAP_THRESHOLD = -3
 def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
     """Fix glibc's mmap threshold at ``nbytes`` (:data:`MMAP_THRESHOLD_BYTES`): larger blocks are mapped on their own
     from now on, whatever was freed before. Process-wide. False where the C library has no ``mallopt`` or refuses."""
-    name = ctypes.util.find_library("c")
-    try:
-        mallopt = getattr(ctypes.CDLL(name), "mallopt", None) if name else None
-    except OSError:
-        return False
+    mallopt = getattr(_LIBC, "mallopt", None)
     return bool(mallopt is not None and mallopt(_M_MMAP_THRESHOLD, int(nbytes)) == 1)
 
 
@@ -108,11 +106,7 @@ class _MallInfo2(ctypes.Structure):
 
 
 def _mallinfo2() -> Callable[[], _MallInfo2] | None:
-    name = ctypes.util.find_library("c")
-    try:
-        call = getattr(ctypes.CDLL(name), "mallinfo2", None) if name else None  # glibc >= 2.33
-    except OSError:
-        return None
+    call = getattr(_LIBC, "mallinfo2", None)  # glibc >= 2.33
     if call is not None:
         call.restype = _MallInfo2
     return call
