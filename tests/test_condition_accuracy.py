@@ -38,7 +38,7 @@ def run(params: list[PlantParameters], command: np.ndarray, seed: int) -> list[n
 def test_the_level_prior_enters_a_pool_once():
     # 2 states, 1 relation; state 1's own fault in column 1; its level box ratio is 4 in both windows.
     layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.2, 0.4]], [[0, 0], [0.29, 0.31]]]))
-    rows = np.array([[2.0, 1.0, 1.0, 4.0, 0.0, 0.30, 0.0, 100.0]] * 2)
+    rows = np.array([[2.0, 1.0, 1.0, 4.0, 0.0, 0.30, 0.0, 100.0] + [E.NO_OTHER_EXPLANATION] * 4] * 2)
     g, a = trailing_evidence(rows, 2, layout)
     np.testing.assert_allclose(g[0], [2.0, 1.0, 1.0, 4.0])  # one window: the per-window rule
     np.testing.assert_allclose(g[1], [2.0, 1.0, 1.0, 2.0])  # two: evidence averaged, the prior 4^(1/2)

@@ -499,7 +499,7 @@ def test_near_standstill_the_load_relation_of_a_unit_whose_brake_was_left_to_its
     rows = moved.transform_evidence(slow)
     n = len(moved.feature_names_)
     assert np.all(rows[:, :n][:, load] == 1.0) and np.all(rows[:, n:2 * n][:, load] == 1.0)
-    assert np.all(rows[:, 2 * n + k:][:, [s.startswith("load_") for s in moved.states_]] == 0.0)
+    assert np.all(rows[:, 2 * n + k:2 * n + 2 * k][:, [s.startswith("load_") for s in moved.states_]] == 0.0)
     judged = copy.copy(moved)
     judged.brake_open_ = False
     assert np.max(judged.transform_evidence(slow)[:, :n][:, load]) > 1.5  # the misfit the flag sets aside

@@ -16,6 +16,7 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
+from hydrowatch.condition.estimates import NO_OTHER_EXPLANATION
 from hydrowatch.condition.evidence import (
     HOLD_SPAN,
     SEVERITY_TOLERANCE,
@@ -58,7 +59,8 @@ def test_one_machine_has_one_severity():
     # or 0.035 beyond it.
     layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.1, 0.5]], [[0, 0], [0.29, 0.31]]]))
     ratios = np.ones((2, 4))  # band (2 states) and level (2 states) ratios
-    agree = np.column_stack([ratios, [[0.0, 0.30], [0.0, 0.30]], [[0.0, 100.0], [0.0, 100.0]]])
+    agree = np.column_stack([ratios, [[0.0, 0.30], [0.0, 0.30]], [[0.0, 100.0], [0.0, 100.0]],
+                             np.full((2, 4), NO_OTHER_EXPLANATION)])  # nothing else explains the relation
     g, a = trailing_evidence(agree, 2, layout)
     np.testing.assert_allclose(a[1], 1.0)
     close, differ = agree.copy(), agree.copy()
@@ -70,8 +72,15 @@ def test_one_machine_has_one_severity():
     # Band box [0.1, 0.5] holds both alone; together each may sit at most δ from 0.30: 100·0.035² more.
     # The level box [0.29, 0.31] held them at its edges already, inside the tolerance: nothing more.
     np.testing.assert_allclose(a[1, [1, 3]], [1.0 + 100 * 0.035**2, 1.0])
+    # The other valve-side faults in the state's band box explain the relation at a ratio of 1.05: a window costs
+    # the shared severity no more than that (the quadratic model's 1.1225 would overstate it).
+    explained = differ.copy()
+    explained[:, 9] = 1.05  # the band box's "others" column of state 1 (after ratios, severities, weights)
+    np.testing.assert_allclose(trailing_evidence(explained, 2, layout)[1][1, 1], 1.05)
+    np.testing.assert_allclose(trailing_evidence(explained, 2, layout)[0][1, 1],
+                               np.exp(0.5 * (np.log(1.05) + np.log(1.05))))
     with pytest.raises(DataError):
-        trailing_evidence(agree[:, :5], 2, layout)
+        trailing_evidence(agree[:, :9], 2, layout)
 
 
 def test_pooling_resolves_look_alike_holds(trained):
@@ -232,7 +241,8 @@ def test_a_pooled_fault_needs_windows_at_two_operating_points(trained):
                               )[-1].state == "relief_spring_warning"  # without the rule the pool carries it
     # the streaming form asks the same
     stream = ConditionStream(model, n_windows=5)
-    rows = np.concatenate([ratios, np.zeros((5, 2 * len(states)))], axis=1)  # no severity to share
+    rows = np.concatenate([ratios, np.zeros((5, 2 * len(states))), np.full((5, 2 * len(states)), NO_OTHER_EXPLANATION)],
+                          axis=1)  # no severity to share
     for row, point in zip(rows, [np.nan, np.nan, 3.49, 3.49, 2.0]):
         stream.update_features(row, point, alone_unknown=False)
     evidence = stream.evidence()

@@ -33,6 +33,10 @@ REFIT_GRID = 19
 REFIT_EXCESS = 1.1
 """A fit on a search limit is searched again only when its MSE exceeds the best valve hypothesis's by this factor
 (on a plateau every hypothesis that explains the window is as good: nothing to find)."""
+NO_OTHER_EXPLANATION = 1e300
+"""The ratio :func:`state_ratios` gives a state's own relation when nothing but its own fault explains it (a load or
+motor fault, or no valve-side alternative): finite, as evidence rows count non-finite values as invalid windows."""
+
 FILL_ITERATIONS = 3
 """Fixed-point passes of the speed fill from flow (P̂L depends on ω through Eq. 7; converges in 2)."""
 
@@ -248,7 +252,8 @@ def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severit
 
 def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
                  box: Mapping[str, tuple[float, float]],
-                 cache: dict[tuple[object, ...], np.ndarray] | None = None) -> dict[str, np.ndarray]:
+                 cache: dict[tuple[object, ...], np.ndarray] | None = None,
+                 own: str | None = None) -> dict[str, np.ndarray]:
     """Mean squared residual of each relation with every severity held inside ``box``.
 
     Parameters
@@ -265,6 +270,11 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
     cache : dict, optional
         Valve residuals already computed for a (fault, low, high), shared between calls on the
         same windows (health states share their tolerance boxes).
+    own : str, optional
+        A state's own valve-side fault: then also ``valve_others``, the valve relation explained by the *other*
+        valve-side faults in their boxes alone, shape (m,): what the relation would read if ``own`` were held where
+        it explains nothing, so that a pool holding ``own`` at a common severity costs a window no more than that
+        (:mod:`hydrowatch.condition.evidence`).
     """
     cache = {} if cache is None else cache
     out: dict[str, np.ndarray] = {}
@@ -272,6 +282,7 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
         s = est.severity[fault]
         out[relation] = est.mse[relation] + est.curvature[fault] * (np.clip(s, *box[fault]) - s) ** 2
     best = np.full(sig.flow.shape[0], np.inf)
+    others = best.copy()
     for fault in parity.VALVE_HYPOTHESES:
         key = _box_key(fault, box[fault])
         if key not in cache:
@@ -289,7 +300,11 @@ def relation_mse(sig: WindowSignals, est: ParityEstimates, p: PlantParameters,
                                               held[moved], sig.leak[moved], pl_noise=noise)
             cache[key] = mse
         best = np.minimum(best, cache[key])
+        if fault != own:
+            others = np.minimum(others, cache[key])
     out["valve"] = best
+    if own in parity.VALVE_HYPOTHESES:
+        out["valve_others"] = others
     return out
 
 
@@ -335,8 +350,10 @@ BoxOf = Box | Callable[[ParityEstimates], Box]
 
 
 def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Sequence[str],
-                 box_sets: Sequence[Sequence[BoxOf]]) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
-    """F[r, k] = MSE_r(state k's box, k's fill) / MSE_r(free) per set of boxes, and the free MSEs.
+                 box_sets: Sequence[Sequence[BoxOf]], own: Sequence[str | None] | None = None
+                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]:
+    """F[r, k] = MSE_r(state k's box, k's fill) / MSE_r(free) per set of boxes, the free MSEs, and per set each
+    state's own valve relation without its own fault.
 
     Parameters
     ----------
@@ -345,24 +362,31 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
     box_sets : sequence of sequences of boxes
         Per set (band, level), each state's box, in state order; a callable box is made from each
         fill group's estimates (per-window bounds).
+    own : sequence of str or None, optional
+        Each state's own fault (None: healthy or untested), for the third output.
 
     Returns
     -------
-    (list of ndarray, dict of str to ndarray)
-        Per box set the ratios, shape (m, n_relations · n_states) relation-major; and the free
+    (list of ndarray, dict of str to ndarray, list of ndarray)
+        Per box set the ratios, shape (m, n_relations · n_states) relation-major; the free
         MSE of each relation, shape (m,): the best fit of every hypothesis and fill tried (a held
-        fit can beat a search stalled at a kink), so that no ratio falls below 1.
+        fit can beat a search stalled at a kink), so that no ratio falls below 1; and per box set,
+        shape (m, n_states), the ratio of each state's valve relation explained by the other valve-side
+        faults in its box (:func:`relation_mse`'s ``valve_others``; where the state's own fault is not
+        valve-side or ``own`` is not given: :data:`NO_OTHER_EXPLANATION`, finite so that rows stay valid).
     """
     n_states = sum(len(g.states) for g in groups)
     m = groups[0].signals.flow.shape[0]
     held = [[{} for _ in range(n_states)] for _ in box_sets]  # type: list[list[dict[str, np.ndarray]]]
     free = {r: np.full(m, np.inf) for r in RELATIONS}
+    faults = [None] * n_states if own is None else list(own)
     for g in groups:
         cache: dict[tuple[object, ...], np.ndarray] = {}
         for boxes, out in zip(box_sets, held):
             for k in g.states:
                 box = boxes[k]
-                out[k] = relation_mse(g.signals, g.estimates, p, box(g.estimates) if callable(box) else box, cache)
+                out[k] = relation_mse(g.signals, g.estimates, p, box(g.estimates) if callable(box) else box, cache,
+                                      faults[k])
         est = g.estimates
         free["load"] = np.minimum(free["load"], est.mse["load"])
         free["motor"] = np.minimum(free["motor"], est.mse["motor"])
@@ -373,4 +397,7 @@ def state_ratios(groups: Sequence[FillGroup], p: PlantParameters, relations: Seq
         scores = np.stack([np.stack([mse[k][r] / np.maximum(free[r], 1e-300) for k in range(n_states)], axis=1)
                            for r in relations], axis=1)
         ratios.append(scores.reshape(m, -1))
-    return ratios, free
+    valve = np.maximum(free["valve"], 1e-300)
+    others = [np.minimum(np.stack([mse[k].get("valve_others", np.full(m, np.inf)) / valve for k in range(n_states)],
+                                  axis=1), NO_OTHER_EXPLANATION) for mse in held]
+    return ratios, free, others

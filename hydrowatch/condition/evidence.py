@@ -35,6 +35,13 @@ differ. The pooled evidence of the last ``n_windows`` valid windows of one machi
   defaults, pump_leak machines on duty cycles read ``unknown`` pooled though right per window —
   development population, seed 7, 6 units: worst unit 74.6 % pooled over 12 windows vs 100 %
   per window; with δ = 0.15 100 % both; a commissioned unit needed 0.25, :data:`SEVERITY_TOLERANCE`).
+  The gain is capped where the valve relation has another explanation: that relation is the best of the four
+  valve-side faults each held in k's box, so window i's pooled ratio is at most the larger of its own ratio and
+  what the *other* valve-side faults in k's box explain alone (the last 2 · n_states columns of the rows). A
+  window that does not load the valve side (a low hold) estimates ŝ_i far off with a curvature the quadratic
+  model extrapolates wrongly; uncapped, it charged k's common severity up to 20 × what the relation itself reads
+  there (issue 11, tuning seed 2066, docs/unseen-units.md: a pump leak alert read warning pooled in 6 windows
+  that each read alert alone).
 
 A pooled fault must also be *seen* at more than one operating point: it replaces a window's own verdict only where
 windows at :data:`SUPPORT_POINTS` distinct operating points of the pool (the windows of one hold are one point,
@@ -85,6 +92,12 @@ alone) read relief_spring_alert pooled in 15 of 40 windows (75.0 %, per window 9
 20 units per seed): tuning seed 2060 healthy 75.0 → 93.3 (commissioned) and 93.3 → 99.4 (own models); fresh seed 2061
 healthy 93.3 → 100 (own models); fresh 2062 had no such unit. Cost: worst units' faults 0.2–1.8 points, never below
 their per-window figure; no median moved by more than 0.2 points (docs/unseen-units.md)."""
+
+
+STATE_COLUMNS = 4
+"""Values per state after the ratios in an evidence row (``ConditionFeatures.transform_evidence``): the free estimate
+of its own fault's severity, that estimate's weight, and its valve relation as the other valve-side faults in its band
+and in its level box explain it."""
 
 
 def operating_points(windows: np.ndarray) -> np.ndarray:
@@ -174,10 +187,10 @@ class EvidenceLayout:
     def check(self, width: int) -> int:
         """Number of ratio columns in rows of ``width`` values; raises if the rows do not fit."""
         k = self.columns.size
-        d = width - 2 * k
+        d = width - STATE_COLUMNS * k
         if self.bounds.shape != (2, k, 2) or d <= 0 or d % 2 or np.any(self.columns >= d // 2):
-            raise DataError(f"features must be transform_evidence rows (2 · n_features + 2 · {k} values) for this "
-                            f"layout. Got {width} values; pass layout=None for plain ratios.")
+            raise DataError(f"features must be transform_evidence rows (2 · n_features + {STATE_COLUMNS} · {k} values) "
+                            f"for this layout. Got {width} values; pass layout=None for plain ratios.")
         return d
 
 
@@ -194,7 +207,7 @@ def _pool(rows: np.ndarray, layout: EvidenceLayout | None) -> tuple[np.ndarray, 
         plain = np.maximum(rows[:, :d], 1.0)
         ratios, tolerant = plain.copy(), plain.copy()
         free = rows[:, d:d + k]
-        weight = rows[:, d + k:]
+        weight = rows[:, d + k:d + 2 * k]
         centre = np.sum(weight * free, axis=0) / np.maximum(weight.sum(axis=0), 1e-300)
         own = layout.columns >= 0
         for half in (0, 1):
@@ -205,7 +218,10 @@ def _pool(rows: np.ndarray, layout: EvidenceLayout | None) -> tuple[np.ndarray, 
                 spread = tolerance * np.abs(common)
                 near = np.clip(free, np.maximum(common - spread, lo), np.minimum(common + spread, hi))
                 extra = weight * ((near - free) ** 2 - (alone - free) ** 2)
-                out[:, half * (d // 2) + layout.columns[own]] += extra[:, own]
+                column = half * (d // 2) + layout.columns[own]
+                # no dearer than the other valve-side faults in the state's box explain the window without its own
+                ceiling = np.maximum(out[:, column], rows[:, d + (2 + half) * k:d + (3 + half) * k][:, own])
+                out[:, column] = np.minimum(out[:, column] + extra[:, own], ceiling)
         if layout.prior_once:
             log_mean = np.mean(np.log(ratios), axis=0)
             log_mean[d // 2:] /= rows.shape[0]  # the level prior once over the pool, not once per window

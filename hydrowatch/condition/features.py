@@ -335,16 +335,17 @@ class ConditionFeatures(EvidenceRows):
         return self.transform_evidence(windows)[:, : 2 * len(self.feature_names_)]
 
     def _ratios(self, groups: Sequence[E.FillGroup], known: bool, sets: int = 2
-                ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+                ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]:
         """:func:`hydrowatch.condition.estimates.state_ratios` for the first ``sets`` of the box sets (band, level),
         of windows with the oil temperature (``known``) or without it (:meth:`_box_of`)."""
         boxes = (self.boxes_, self.level_boxes_)[:sets]
-        ratios, free = E.state_ratios(groups, self.nominal_, self.relations_,
-                                      [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes])
+        ratios, free, others = E.state_ratios(
+            groups, self.nominal_, self.relations_,
+            [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes], self._own_faults())
         stalled = self._stalled(groups)  # near standstill with ωs left to its prior the load relation is not judged
         for part in ratios:
             without_load_relation(part, self.feature_names_, stalled)
-        return ratios, free
+        return ratios, free, others
 
 
     def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> E.BoxOf:

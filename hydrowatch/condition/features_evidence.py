@@ -15,7 +15,7 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
-from hydrowatch.condition.evidence import EvidenceLayout
+from hydrowatch.condition.evidence import STATE_COLUMNS, EvidenceLayout
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.relief import window_factors
 from hydrowatch.condition.standstill import stalled
@@ -45,19 +45,25 @@ class EvidenceRows:
         def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]: ...
         def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]: ...
         def _ratios(self, groups: list[E.FillGroup], known: bool, sets: int = 2
-                    ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]: ...
+                    ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]: ...
         def _follows_relief(self, state: str) -> bool: ...
         def _load_scale(self) -> LoadScale: ...
 
     def transform_evidence(self, windows: np.ndarray) -> np.ndarray:
         """:meth:`transform_with_levels` plus what pooling windows with one severity needs, NaN rows invalid.
 
-        Shape (n_windows, 2 · n_features + 2 · n_states): the band and level ratios, then for every
+        Shape (n_windows, :meth:`evidence_width`): the band and level ratios, then for every
         state the free estimate of its own fault's severity (n_states), then that fault's curvature
-        d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy). See
+        d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy), then the ratio of the
+        state's own valve relation explained by the other valve-side faults in its band box and in its level box
+        (2 · n_states; inf where its own fault is not valve-side: nothing else explains that relation). See
         :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout` (of the windows' oil part).
         """
         return self.evidence_and_estimates(windows)[0]
+
+    def evidence_width(self) -> int:
+        """Values in a :meth:`transform_evidence` row: 2 · n_features + :data:`STATE_COLUMNS` · n_states."""
+        return 2 * len(self.feature_names_) + STATE_COLUMNS * len(self.states_)
 
     def evidence_and_estimates(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, E.ParityEstimates | None]:
         """:meth:`transform_evidence` rows, the valid-window mask (n,) and the valid windows' estimates at the
@@ -65,7 +71,7 @@ class EvidenceRows:
         reads (:func:`hydrowatch.condition.degradation.features_degradation`) beside the verdicts."""
         parts = self._by_oil(windows)
         n = sum(int(m.sum()) for m, _, _ in parts)
-        out = np.full((n, 2 * len(self.feature_names_) + 2 * len(self.states_)), np.nan)
+        out = np.full((n, self.evidence_width()), np.nan)
         valid = np.zeros(n, dtype=bool)
         found: list[tuple[np.ndarray, E.ParityEstimates]] = []
         for mask, w, known in parts:
@@ -81,10 +87,10 @@ class EvidenceRows:
         """:meth:`evidence_and_estimates` of one oil part (``known``: the windows carry the oil temperature)."""
         ok, groups = self._estimates(w)
         k = len(self.states_)
-        out = np.full((ok.size, 2 * len(self.feature_names_) + 2 * k), np.nan)
+        out = np.full((ok.size, self.evidence_width()), np.nan)
         if not groups:
             return out, ok, None
-        (band, level), free = self._ratios(groups, known)
+        (band, level), free, (band_others, level_others) = self._ratios(groups, known)
         severity, weight = np.zeros((band.shape[0], k)), np.zeros((band.shape[0], k))
         faults = self._own_faults()
         for g in groups:
@@ -100,7 +106,7 @@ class EvidenceRows:
                         weight[:, j] *= frame**2
         load = np.array([f == "load" for f in faults], dtype=bool)
         weight[np.ix_(self._stalled(groups), load)] = 0.0  # no load severity where the load relation is not judged
-        out[ok] = np.concatenate([band, level, severity, weight], axis=1)
+        out[ok] = np.concatenate([band, level, severity, weight, band_others, level_others], axis=1)
         return out, ok, groups[0].estimates  # the nominal fill comes first (:meth:`_estimates`)
 
     def _stalled(self, groups: Sequence[E.FillGroup]) -> np.ndarray:

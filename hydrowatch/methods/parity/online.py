@@ -96,7 +96,7 @@ class ParityJudge:
         width = 2 * len(features.feature_names_)
         models = self._models(machines)
         known = temperature_known(raw, WIDTH) if TEMPERATURE in self.columns else np.zeros(len(raw), dtype=bool)
-        rows = np.empty((len(raw), width + 2 * len(features.states_)))
+        rows = np.empty((len(raw), features.evidence_width()))
         verdicts: list[Verdict | None] = [None] * len(raw)
         indices: list[dict[str, Any] | None] = [None] * len(raw)
         for model in {id(m): m for m in models}.values():  # each machine by its own (commissioned) model
