@@ -18,7 +18,8 @@ import hydrowatch.condition.holdout as H
 from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
-from hydrowatch.condition.unit import drawn_flow, identify_unit, valve_error
+from hydrowatch.condition.unit import identify_unit
+from hydrowatch.condition.unit_checks import drawn_flow, valve_error
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant import PlantSimulator

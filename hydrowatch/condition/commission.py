@@ -59,10 +59,9 @@ from hydrowatch.condition.unit import (
     PRIOR,
     RELATION_PARAMETERS,
     UnitFit,
-    drawn_flow,
     identify_unit,
-    valve_error,
 )
+from hydrowatch.condition.unit_checks import drawn_flow, valve_error
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
@@ -195,11 +194,11 @@ def identify_for_commissioning(features: ConditionFeatures, windows: np.ndarray)
     (:func:`on_search_limit`) is held at the trained unit's value and the rest fitted again (where the halves
     disagreed, also the halves, for the held-out choice below).
     When the halves disagree, each half is also fitted with the trained unit's supply (:data:`RESTRICTED_PARAMETERS`),
-    and every half's fit predicts the other half's valve relation (:func:`~hydrowatch.condition.unit.valve_error`,
-    2-fold): the whole fit is still used unless the kept supply's held-out error is clearly below its
-    (:func:`keeps_supply`; and its level uncertainty within the limit). Otherwise only
-    :data:`RESTRICTED_PARAMETERS` are identified (``supply`` "kept from the trained unit": record 5 minutes of
-    filtered noise over the command range to identify it).
+    and every half's fit predicts the other half's valve relation
+    (:func:`~hydrowatch.condition.unit_checks.valve_error`, 2-fold): the whole fit is still used unless the kept
+    supply's held-out error is clearly below its (:func:`keeps_supply`; and its level uncertainty within the limit).
+    Otherwise only :data:`RESTRICTED_PARAMETERS` are identified (``supply`` "kept from the trained unit": record 5
+    minutes of filtered noise over the command range to identify it).
     """
     args = (features.nominal_, features.sensors, features.viscosity_coefficient)
     half = windows.shape[0] // 2
@@ -292,7 +291,8 @@ def on_search_limit(fit: UnitFit, names: tuple[str, ...] = RELIEF) -> list[str]:
 
 def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray) -> UnitFit:
     """``fit`` with the pump's capacity Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × what the recording drew from
-    it (:func:`~hydrowatch.condition.unit.drawn_flow`), when the recording left Dp to its prior (:func:`left_to_prior`).
+    it (:func:`~hydrowatch.condition.unit_checks.drawn_flow`), when the recording left Dp to its prior
+    (:func:`left_to_prior`).
 
     Such a recording never drove the pump to its limit, so Dp stays at the trained unit's value; a unit whose pump
     delivers less then reaches its limit on a later day where the model expects spare capacity, and reads healthy
@@ -315,7 +315,7 @@ def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray
 
 def _drawn_capacity(features: ConditionFeatures, windows: np.ndarray, p: PlantParameters) -> PlantParameters:
     """``p`` with the pump's capacity Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × the flow the recording drew from
-    it (:func:`~hydrowatch.condition.unit.drawn_flow`); ``p`` itself when it is within."""
+    it (:func:`~hydrowatch.condition.unit_checks.drawn_flow`); ``p`` itself when it is within."""
     bound = (1.0 + CAPACITY_MARGIN) * drawn_flow(windows, p, features.sensors, features.viscosity_coefficient)
     return p if bound >= p.Dp * p.omega_p else p.replace(Dp=bound / p.omega_p)
 

@@ -2,8 +2,8 @@
 
 Where a healthy recording's halves disagree, each half is fitted twice, with every parameter (the whole fits) and
 with the trained unit's supply (kept), and each half's fits predict the other half's valve relation window by window
-(:func:`~hydrowatch.condition.unit.valve_error`). This module turns those per-window held-out errors into the ratio
-and the rule that chooses between the two (docs/unseen-units.md, "The held-out choice per window").
+(:func:`~hydrowatch.condition.unit_checks.valve_error`). This module turns those per-window held-out errors into
+the ratio and the rule that chooses between the two (docs/unseen-units.md, "The held-out choice per window").
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def held_out_ratio(kept: Sequence[np.ndarray], whole: Sequence[np.ndarray]) -> f
     """How many times worse the kept supply's fits predict the other half than the whole fits' (:data:`HELD_OUT_RATIO`):
     the geometric mean, over each direction's held-out windows, of the ratio of their valve errors, the two directions
     weighted alike (each sequence: the first half's fit's errors on the second half's windows, the second's on the
-    first's, (L/min)², :func:`~hydrowatch.condition.unit.valve_error`).
+    first's, (L/min)², :func:`~hydrowatch.condition.unit_checks.valve_error`).
 
     Each held-out window counts once, and each half. A duty cycle visits operating points unevenly: a half that never
     drove the valve where the other did extrapolates there with either supply, by orders of magnitude in a few windows,

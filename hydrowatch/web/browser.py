@@ -30,6 +30,8 @@ from hydrowatch.errors import DataError
 CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 ENV_BROWSER = "HYDROWATCH_CHROMIUM"
 _LISTENING = re.compile(r"DevTools listening on (ws://\S+)")
+NAVIGATED = "Inspected target navigated or closed"
+"""DevTools' error when a navigation cuts off an evaluation (:meth:`Chromium.wait_for` polls again)."""
 
 
 def find_chromium() -> str | None:
@@ -239,10 +241,18 @@ class Chromium:
         return result.get("result", {}).get("value")
 
     def wait_for(self, expression: str, timeout: float = 10.0, poll: float = 0.02) -> Any:
-        """Poll ``expression`` until it is truthy; returns its value (``TimeoutError`` after ``timeout`` s)."""
+        """Poll ``expression`` until it is truthy; returns its value (``TimeoutError`` after ``timeout`` s).
+
+        An evaluation that a navigation cuts off ("Inspected target navigated or closed": the page of a link just
+        clicked replaces the one polled) counts as not yet true; the next poll asks the new page."""
         deadline = time.monotonic() + timeout
         while True:
-            value = self.evaluate(expression)
+            try:
+                value = self.evaluate(expression)
+            except DataError as exc:
+                if NAVIGATED not in str(exc):
+                    raise
+                value = None
             if value:
                 return value
             if time.monotonic() > deadline:
