@@ -248,7 +248,7 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
              for i, t in enumerate(tallies) for c in conditions if t.right[(c, 1)][1]]
     worse = sorted((w for w in worse if w[0] > 0), reverse=True)  # item 2: pooling never makes a verdict worse
     figures["pool 12 below one window"] = [{"points": p, "unit_at": i, "condition": c} for p, i, c in worse]
-    print(f"pool 12 below the window alone on {len(worse)} of {len(tallies)} units × {len(conditions)} conditions"
+    print(f"pool 12 below the window alone on {len(worse)} of {len(tallies) * len(conditions)} (unit, condition) pairs"
           + "".join(f"; {p:.1f} points ({c}, unit at {i})" for p, i, c in worse[:3]))
     return figures
 
