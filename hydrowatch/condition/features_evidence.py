@@ -56,7 +56,8 @@ class EvidenceRows:
         state the free estimate of its own fault's severity (n_states), then that fault's curvature
         d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy), then the ratio of the
         state's own valve relation explained by the other valve-side faults in its band box and in its level box
-        (2 · n_states; inf where its own fault is not valve-side: nothing else explains that relation). See
+        (2 · n_states; :data:`~hydrowatch.condition.estimates.NO_OTHER_EXPLANATION` where its own fault is not
+        valve-side: nothing else explains that relation). See
         :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout` (of the windows' oil part).
         """
         return self.evidence_and_estimates(windows)[0]
