@@ -31,7 +31,8 @@ Accuracy = share of windows whose verdict is the true state (``unknown``, ``inva
 wrong). Per window (pool 1) and pooled over each machine's last 3, 6, 12 valid windows (all
 windows counted, the first ones pooled over fewer). Per condition and setting: the **median unit
 and the worst unit**. Probabilities: expected calibration error (10 bins of the verdict's
-probability, verdicts that name a state) and the share of wrong named verdicts with p > 0.99.
+probability, verdicts that name a state), the share of wrong named verdicts with p > 0.99, and the share of
+verdicts with p > 0.99 that are wrong (≤ 1 % if such probabilities are honest).
 
 Run: ``python benchmarks/bench_unseen_units.py [--units 20] [--seed 2026] [--train-seconds 300]
 [--test-seconds 100] [--commission] [--json OUT]``. The population of ``--seed 7`` tuned the
@@ -150,16 +151,19 @@ def decided(v: Verdict) -> str | None:
     return max(v.probabilities, key=v.probabilities.__getitem__) if v.probabilities else None
 
 
-def ece(pairs: list[tuple[float, bool]], bins: int = 10) -> tuple[float, float]:
-    """Expected calibration error and share of wrong verdicts with p > 0.99."""
+def ece(pairs: list[tuple[float, bool]], bins: int = 10) -> tuple[float, float, float]:
+    """Expected calibration error, the share of wrong verdicts with p > 0.99, and the share of verdicts with
+    p > 0.99 that are wrong (honest probabilities keep the last ≤ 1 %: wrong ones with p > 0.99 can be a large share
+    of few wrong ones while such verdicts are still right 999 times in 1000)."""
     if not pairs:
-        return float("nan"), float("nan")
+        return float("nan"), float("nan"), float("nan")
     p = np.array([a for a, _ in pairs])
     ok = np.array([b for _, b in pairs], dtype=float)
     idx = np.minimum((p * bins).astype(int), bins - 1)
     e = sum(abs(ok[idx == b].mean() - p[idx == b].mean()) * np.mean(idx == b) for b in range(bins) if np.any(idx == b))
-    wrong = ok == 0
-    return float(e), float(np.mean(p[wrong] > 0.99)) if wrong.any() else 0.0
+    wrong, sure = ok == 0, p > 0.99
+    return (float(e), float(np.mean(sure[wrong])) if wrong.any() else 0.0,
+            float(np.mean(~ok[sure].astype(bool))) if sure.any() else 0.0)
 
 
 def unit_conditions(day: PlantParameters, states: tuple[str, ...], rng: np.random.Generator, test_s: float,
@@ -243,9 +247,10 @@ def summarise(tallies: list[Tally], title: str) -> dict[str, object]:
             at = np.argmin(share) if worst is np.min else np.argmax(share)
             figures[f"{name.split(' (')[0]}|{n}"] = {"median": float(np.median(share)), "worst": float(worst(share)),
                                                    "worst_at": int(at)}
-        e, w = ece([pair for t in tallies for pair in t.calibration[n]])
-        rows["ECE / wrong with p > 0.99 (all units)"].append(f"{e:.3f} / {100 * w:.0f} %")
-        figures[f"calibration|{n}"] = {"ece": e, "wrong_p99": w}
+        e, w, s = ece([pair for t in tallies for pair in t.calibration[n]])
+        rows["ECE / wrong with p > 0.99 / p > 0.99 wrong (all units)"].append(f"{e:.3f} / {100 * w:.0f} % / "
+                                                                             f"{100 * s:.2f} %")
+        figures[f"calibration|{n}"] = {"ece": e, "wrong_p99": w, "p99_wrong": s}
     for name, cells in rows.items():
         print(f"| {name} | " + " | ".join(cells) + " |")
     worse = [(100.0 * (t.right[(c, 1)][0] - t.right[(c, 12)][0]) / t.right[(c, 1)][1], i, c)

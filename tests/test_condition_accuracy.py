@@ -13,7 +13,7 @@ from test_condition_model import CHANNELS
 
 from hydrowatch.condition import ConditionFeatures, ConditionModel, EvidenceLayout, pooled_windows, trailing_evidence
 from hydrowatch.condition import estimates as E
-from hydrowatch.condition.evidence import operating_points, trailing_count, trailing_support
+from hydrowatch.condition.evidence import operating_points, trailing_count, trailing_spans, trailing_support
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import fault_parameters, severity_for_speed_drop, state_parameters
@@ -88,7 +88,8 @@ def test_band_edge_severities_settle_when_pooled(spread_machines):
         hits["window"].append(np.array([v.state == state for v in model.judge_evidence(ratios, ratios)]))
         g, a = trailing_evidence(rows, n, layout)
         pooled = {"windows": pooled_windows(rows, n), "support": trailing_count(model.alone_unknown(ratios), rows, n),
-                  "supported": trailing_support(model.alone_leads(ratios), operating_points(w), rows, n)}
+                  "supported": trailing_support(model.alone_leads(ratios), operating_points(w), rows, n),
+                  "spans": trailing_spans(operating_points(w), rows, n)}
         hits["pooled"].append(np.array([v.state == state for v in model.judge_pooled(g, a, ratios, **pooled)])[n - 1:])
         each = g.copy()  # round 3: the level prior averaged over the pool like evidence
         each[:, width // 2:] **= np.minimum(np.arange(1, len(rows) + 1), n)[:, None]

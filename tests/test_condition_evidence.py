@@ -23,6 +23,7 @@ from hydrowatch.condition.evidence import (
     distinct_points,
     operating_points,
     trailing_count,
+    trailing_spans,
     trailing_support,
 )
 from hydrowatch.condition.model import CLEAR_FACTOR, CLEAR_WINDOWS, POOLED_EXCESS
@@ -182,15 +183,23 @@ def test_a_pool_reads_unknown_only_when_a_window_did_or_its_excess_is_clear(trai
 
     def states_of(support: list[int]) -> list[str]:
         return [v.state for v in model.judge_pooled(rows, rows, rows, windows=np.full(3, 12), supported=everything,
-                                                    support=np.array(support))]
+                                                    support=np.array(support), spans=np.ones(3, dtype=bool))]
 
     assert states_of([0, 1, 0]) == ["pump_leak_warning", "unknown", "unknown"]
     assert states_of([0, 0, 0])[0] == "pump_leak_warning"
     assert states_of([0, 0, 0])[2] == "unknown"  # clear, over 12 windows
     # over fewer than CLEAR_WINDOWS windows (a recording's first) the clear limit does not judge: the window itself did
     short = model.judge_pooled(rows, rows, rows, windows=np.array([12, 12, CLEAR_WINDOWS - 1]), support=np.zeros(3),
-                               supported=everything)
+                               supported=everything, spans=np.ones(3, dtype=bool))
     assert short[2].state == "pump_leak_warning"
+    # nor over pools of one hold (SUPPORT_POINTS): their windows share the relations' model error, and each window's
+    # own open-set verdict stands, whatever the pool's excess or how many windows read unknown alone (issue 11, fresh
+    # seed 2069: pump_leak_alert machines in a 3.2 V and a 2.9 V hold read unknown pooled, right alone)
+    alone = [v.state for v in model.judge_evidence(rows, rows)]
+    assert alone[2] == "pump_leak_warning"
+    one_hold = model.judge_pooled(rows, rows, rows, windows=np.full(3, 12), support=np.array([0, 1, 0]),
+                                  supported=everything, spans=np.zeros(3, dtype=bool))
+    assert [v.state for v in one_hold] == alone
     # the batch form counts the windows that read unknown alone over the same trailing windows it pools
     flags = np.array([True, False, False, True, False])
     ratios = np.ones((5, 2))
@@ -233,12 +242,14 @@ def test_a_pooled_fault_needs_windows_at_two_operating_points(trained):
 
     def last(points: list[float]) -> str:
         supported = trailing_support(leads, np.array(points), ratios, 5)
-        return model.judge_pooled(decision, decision, ratios, **pooled, supported=supported)[-1].state
+        spans = trailing_spans(np.array(points), ratios, 5)
+        return model.judge_pooled(decision, decision, ratios, **pooled, supported=supported, spans=spans)[-1].state
 
     assert last([np.nan, np.nan, 3.49, 3.49, 2.0]) == "healthy"  # one hold: the last window's own verdict
     assert last([np.nan, np.nan, 3.49, np.nan, 2.0]) == "relief_spring_warning"  # a hold and a ramp: two points
-    assert model.judge_pooled(decision, decision, ratios, **pooled, supported=np.ones((5, len(states)), bool)
-                              )[-1].state == "relief_spring_warning"  # without the rule the pool carries it
+    carried = model.judge_pooled(decision, decision, ratios, **pooled, supported=np.ones((5, len(states)), bool),
+                                 spans=np.ones(5, dtype=bool))
+    assert carried[-1].state == "relief_spring_warning"  # without the rule the pool carries it
     # the streaming form asks the same
     stream = ConditionStream(model, n_windows=5)
     rows = np.concatenate([ratios, np.zeros((5, 2 * len(states))), np.full((5, 2 * len(states)), NO_OTHER_EXPLANATION)],

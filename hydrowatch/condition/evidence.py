@@ -47,6 +47,10 @@ A pooled fault must also be *seen* at more than one operating point: it replaces
 windows at :data:`SUPPORT_POINTS` distinct operating points of the pool (the windows of one hold are one point,
 :func:`operating_points`) each prefer it to ``healthy`` alone by the decision's margin; else the window's own verdict
 stands. The windows of one hold share the relations' model error there, so n of them are one piece of evidence.
+For the same reason the pooled open-set rule judges only pools that span :data:`SUPPORT_POINTS` operating points
+(:func:`trailing_spans`); over one hold the window's own open-set verdict stands (issue 11, seed 2069: a pump leak
+alert whose 3.2 V hold misfit by 4–5 in two of its first three windows, each within the rule alone, read ``unknown``
+pooled at the clear limit; another's one borderline window was carried to the next window of the same hold).
 
 The price is delay: after a change of state the verdict follows when the new state's windows
 outweigh the old ones (about n/2 windows). Invalid windows (NaN rows) are skipped, so a gap does
@@ -156,6 +160,16 @@ def trailing_support(leads: np.ndarray, points: np.ndarray, features: np.ndarray
         pool = valid[max(0, pos - n + 1):pos + 1]
         out[i] = supported_states(lead[pool], p[pool], needed)
     return out
+
+
+def trailing_spans(points: np.ndarray, features: np.ndarray, n_windows: int,
+                   needed: int = SUPPORT_POINTS) -> np.ndarray:
+    """Whether each row's trailing ``n_windows`` valid windows span ``needed`` distinct operating points, shape (n,)
+    (invalid rows False): where they do not, the pool's open-set evidence is one hold's, which the window alone has
+    judged (:meth:`~hydrowatch.condition.model.ConditionModel.judge_pooled`)."""
+    f = np.asarray(features, dtype=np.float64)
+    every = np.ones((f.shape[0] if f.ndim == 2 else 0, 1), dtype=bool)
+    return trailing_support(every, points, f, n_windows, needed)[:, 0]
 
 
 def _check_n(n_windows: int) -> int:

@@ -40,6 +40,7 @@ from hydrowatch.condition.evidence import (
     pooled_windows,
     trailing_count,
     trailing_evidence,
+    trailing_spans,
     trailing_support,
 )
 from hydrowatch.condition.features import ConditionFeatures
@@ -168,7 +169,8 @@ class ConditionModel:
         unknown = trailing_count(self.alone_unknown(ratios), rows, smoothing)  # the rows trailing_evidence pools
         supported = trailing_support(self.alone_leads(ratios), points, rows, smoothing, support_points)
         return self.judge_pooled(*trailing_evidence(rows, smoothing, layout), ratios, reasons,
-                                 windows=pooled_windows(rows, smoothing), support=unknown, supported=supported)
+                                 windows=pooled_windows(rows, smoothing), support=unknown, supported=supported,
+                                 spans=trailing_spans(points, rows, smoothing, support_points))
 
     def alone_leads(self, ratios: np.ndarray) -> np.ndarray:
         """Whether each window alone prefers each state to ``healthy`` by the decision's margin, shape (n, n_states)
@@ -212,7 +214,7 @@ class ConditionModel:
 
     def judge_pooled(self, decision: np.ndarray, open_set: np.ndarray, current: np.ndarray,
                      reasons: Sequence[str | None] | None = None, *, windows: np.ndarray,
-                     support: np.ndarray, supported: np.ndarray) -> list[Verdict]:
+                     support: np.ndarray, supported: np.ndarray, spans: np.ndarray) -> list[Verdict]:
         """Verdicts from pooled scores (:func:`~hydrowatch.condition.evidence.trailing_evidence`) and each
         window's own ratios ``current``, all shape (n, n_features); ``windows`` (n,): how many windows each row
         pools (:func:`~hydrowatch.condition.evidence.pooled_windows`; the probabilities weigh the evidence by it,
@@ -222,12 +224,26 @@ class ConditionModel:
         ``support`` out and measured pools without :data:`CLEAR_FACTOR`'s rule). ``supported`` (n, n_states): whether
         windows at :data:`~hydrowatch.condition.evidence.SUPPORT_POINTS` operating points of each pool prefer each
         state to ``healthy`` alone (:func:`~hydrowatch.condition.evidence.trailing_support`); a pooled fault without
-        it gives way to the window's own verdict. See :meth:`pools_open_set`."""
-        if self.pools_open_set():
-            verdicts = self.judge_evidence(decision, open_set, reasons, pooled=True, windows=windows, support=support)
-        else:
-            verdicts = self.judge_evidence(decision, np.where(np.isfinite(decision), current, np.nan), reasons,
-                                           windows=windows)
+        it gives way to the window's own verdict. ``spans`` (n,): whether each pool spans those operating points
+        (the same count over all its windows); where it does not, the window's own open-set verdict stands
+        (:data:`~hydrowatch.condition.evidence.SUPPORT_POINTS`: the windows of one hold share the relations' model
+        error there, one piece of evidence, which the window alone has already judged). See :meth:`pools_open_set`."""
+        decision, current = np.atleast_2d(decision), np.atleast_2d(current)
+        pooled = np.asarray(spans, dtype=bool).reshape(-1) & self.pools_open_set()
+        windows = np.asarray(windows).reshape(-1)
+        verdicts: list[Verdict] = [cast(Verdict, None)] * decision.shape[0]
+        for rows, pool in ((np.flatnonzero(pooled), True), (np.flatnonzero(~pooled), False)):
+            if not rows.size:
+                continue
+            why = [reasons[i] for i in rows.tolist()] if reasons is not None else None
+            if pool:
+                got = self.judge_evidence(decision[rows], np.atleast_2d(open_set)[rows], why, pooled=True,
+                                          windows=windows[rows], support=np.asarray(support).reshape(-1)[rows])
+            else:
+                got = self.judge_evidence(decision[rows], np.where(np.isfinite(decision[rows]), current[rows], np.nan),
+                                          why, windows=windows[rows])
+            for i, v in zip(rows.tolist(), got):
+                verdicts[i] = v
         index = {c: k for k, c in enumerate(np.asarray(self.decision_.classes_).tolist()) if c != "healthy"}
         ok = np.atleast_2d(np.asarray(supported, dtype=bool))
         alone = [i for i, v in enumerate(verdicts) if v.state in index and not ok[i, index[v.state]]]

@@ -6,13 +6,19 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from hydrowatch.condition.evidence import EvidenceSmoother, operating_points, supported_states
+from hydrowatch.condition.evidence import (
+    SUPPORT_POINTS,
+    EvidenceSmoother,
+    distinct_points,
+    operating_points,
+    supported_states,
+)
 from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import NotFittedError
 from hydrowatch.verdict import Verdict
 
-Evidence = tuple[np.ndarray, np.ndarray, np.ndarray, int, int, np.ndarray]
+Evidence = tuple[np.ndarray, np.ndarray, np.ndarray, int, int, np.ndarray, bool]
 """One stream's pooled evidence (:meth:`ConditionStream.evidence`), what :func:`judge_streams` stacks."""
 
 POOLED_WINDOWS = 12
@@ -88,8 +94,10 @@ class ConditionStream:
     def evidence(self) -> Evidence | None:
         """What :meth:`get` judges: the decision's and the open set's pooled scores and the last valid window's
         own ratios, each shape (n_ratios,) (all three that row when ``n_windows`` is 1), how many windows
-        are pooled, how many of them read ``unknown`` alone, and which states windows at enough operating points
-        prefer to ``healthy`` (n_states,) (:func:`~hydrowatch.condition.evidence.supported_states`); None before any.
+        are pooled, how many of them read ``unknown`` alone, which states windows at enough operating points
+        prefer to ``healthy`` (n_states,) (:func:`~hydrowatch.condition.evidence.supported_states`), and whether the
+        pooled windows span that many operating points (else the open set judges the last window alone); None
+        before any.
 
         A scorer of many machines stacks these rows and judges them in one call (:func:`judge_streams`).
         """
@@ -100,8 +108,10 @@ class ConditionStream:
         current = latest[: pooled[0].size]
         supported = supported_states(self._leads.rows(), self._points.rows())
         if self.n_windows == 1:
-            return current, current, current, 1, int(self._alone.latest()), supported
-        return pooled[0], pooled[1], current, len(self._smoother), int(self._alone.rows().sum()), supported
+            return current, current, current, 1, int(self._alone.latest()), supported, False
+        spans = distinct_points(self._points.rows()) >= SUPPORT_POINTS
+        return (pooled[0], pooled[1], current, len(self._smoother), int(self._alone.rows().sum()), supported,
+                bool(spans))
 
     def get(self) -> Verdict | None:
         """The verdict of the pooled windows, or None before the first valid window."""
@@ -117,8 +127,9 @@ def judge_streams(model: ConditionModel, n_windows: int, evidence: Sequence[Evid
     ----------
     n_windows : int
         The streams' ``n_windows`` (1: each row judged alone).
-    evidence : sequence of (decision, open_set, current, windows pooled, of them read ``unknown`` alone, supported)
-        Rows of shape (n_ratios,), NaN rows invalid windows; ``supported`` (n_states,) as in
+    evidence : sequence of (decision, open_set, current, windows pooled, of them read ``unknown`` alone, supported,
+    spans)
+        Rows of shape (n_ratios,), NaN rows invalid windows; ``supported`` (n_states,) and ``spans`` as in
         :meth:`ConditionStream.evidence`.
     reasons : sequence of str or None, optional
         Why a window is invalid (its verdict then says so).
@@ -127,4 +138,5 @@ def judge_streams(model: ConditionModel, n_windows: int, evidence: Sequence[Evid
     if n_windows == 1:
         return model.judge_evidence(current, current, reasons)
     return model.judge_pooled(decision, open_set, current, reasons, windows=np.array([e[3] for e in evidence]),
-                              support=np.array([e[4] for e in evidence]), supported=np.stack([e[5] for e in evidence]))
+                              support=np.array([e[4] for e in evidence]), supported=np.stack([e[5] for e in evidence]),
+                              spans=np.array([e[6] for e in evidence], dtype=bool))

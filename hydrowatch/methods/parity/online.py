@@ -115,7 +115,7 @@ class ParityJudge:
             for i, why, novel, point, lead in zip(mine.tolist(), reasons, unknown_alone.tolist(), points.tolist(),
                                                   leads):
                 row, machine = rows[i], machines[i]
-                alone = (row[:width], row[:width], row[:width], 1, int(novel), everything)
+                alone = (row[:width], row[:width], row[:width], 1, int(novel), everything, False)
                 if self.smoothing == 1:
                     evidence.append(alone)
                     continue
