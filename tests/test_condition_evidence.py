@@ -200,6 +200,20 @@ def test_a_pool_reads_unknown_only_when_a_window_did_or_its_excess_is_clear(trai
     one_hold = model.judge_pooled(rows, rows, rows, windows=np.full(3, 12), support=np.array([0, 1, 0]),
                                   supported=everything, spans=np.zeros(3, dtype=bool))
     assert [v.state for v in one_hold] == alone
+    # the streaming form counts the points of its own windows: three clear windows of one hold keep the name,
+    # the same three at two points read unknown
+    full = np.concatenate([row(clear), np.zeros(2 * len(states)), np.full(2 * len(states), NO_OTHER_EXPLANATION)])
+
+    def streamed(points: list[float]) -> str:
+        stream = ConditionStream(model, n_windows=3)
+        for point in points:
+            stream.update_features(full, point, alone_unknown=False)
+        got = stream.get()
+        assert got is not None
+        return got.state
+
+    assert streamed([2.0, 2.0, 2.0]) == "pump_leak_warning"
+    assert streamed([2.0, 3.0, 2.0]) == "unknown"
     # the batch form counts the windows that read unknown alone over the same trailing windows it pools
     flags = np.array([True, False, False, True, False])
     ratios = np.ones((5, 2))
