@@ -61,7 +61,7 @@ from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
 from hydrowatch.gap.candidates import Candidate, Refit, Scan, holdout_cost, untestable
 from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.hypothesis import polish, recalibrate, settle
-from hydrowatch.gap.judge import judge
+from hydrowatch.gap.judge import judge, pays
 from hydrowatch.gap.locate import whiteness
 from hydrowatch.gap.screen import Screened, screen
 from hydrowatch.gap.side_by_side import side_by_side
@@ -196,14 +196,6 @@ def _without(aligned: AlignedRecording, current: OutputErrorFit, effect_id: str)
     reduced = replace(space, effects={k: dict(v) for k, v in current.effects.items() if k != effect_id},
                       effect_free=tuple((e, p) for e, p in space.effect_free if e != effect_id))
     return fit_output_error(aligned, reduced, current.z[keep], max_nfev=PRUNE_NFEV)
-
-
-def pays(j: dict[str, float], min_gain: float, majority: float) -> bool:
-    """The gain rule of acceptance (module docstring): the held-out cost falls by ``min_gain`` (relative), or by
-    anything while ``majority`` of the held-out error above the noise ceiling goes (``j``: :func:`judge`). Only asked
-    while the model fails the discovery test (:func:`diagnose` runs, and goes on, only then), i.e. where what is
-    left is beyond what noise and parameter uncertainty explain."""
-    return bool(j["gain"] >= min_gain or (j["gain"] > 0 and j["explained"] >= majority))
 
 
 def _still_needed(aligned: AlignedRecording, without: OutputErrorFit, current: OutputErrorFit, candidate: Candidate,
