@@ -6,11 +6,8 @@ partner plant parameters; an effect without partners is dropped when no magnitud
 refits the best ``confirm`` of them on the whole record jointly with the plant parameters, and
 accepts the best one only if all of these hold (gap-method.md, step 4):
 
-* the held-out cost falls by at least ``min_gain`` (relative) — or the effect removes at least ``majority`` of the
-  held-out error above the noise ceiling (once one effect is in, the cost can be within a few per cent of the
-  ceiling, so that no effect lowers the *total* by ``min_gain``, however much of what is left it explains:
-  issue 12, seed 2063 unit 9, a pump ripple beside valve saturation removed 52 % of it at a total gain of 2.3 %) —
-  and consistently: the mean over 1 s
+* the held-out cost falls by at least ``min_gain`` (relative), or the effect removes ``majority`` of the error
+  above the noise ceiling (:func:`~hydrowatch.gap.judge.pays`), and consistently: the mean over 1 s
   held-out blocks of ln(J₁/J₀) lies more than ``n_se`` standard errors below zero (a real effect
   lowers the cost in every block, by much where the record excites it and by little elsewhere; a
   test on the raw cost difference is dominated by the few blocks that excite a local effect —
@@ -309,8 +306,7 @@ def diagnose(
     min_explained : float, default 0.2
         Smallest share of the held-out error above the noise ceiling the effect must remove.
     majority : float, default 0.5
-        A share of that error whose removal passes the gain rule whatever the relative drop of the total cost
-        (:func:`pays`).
+        A share of that error whose removal passes the gain rule whatever the total's drop (:func:`pays`).
     max_worse : float, default 0.1
         Largest relative rise of any one sensor's held-out error the effect may cause.
     origins : sequence of PlantParameters, default ()
