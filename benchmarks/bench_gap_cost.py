@@ -3,7 +3,7 @@
 Every model the analysis simulates (not one taken from its kept simulations, gap/simulations.py) is counted
 in simulations of the whole record (a model simulated over the 14 s screening head counts 14/120) and its
 process CPU time, both by the analysis step
-that asked for it (the innermost of calibrate, screen, recalibrate, polish, settle, _absorb, _prune,
+that asked for it (the innermost of calibrate, screen, recalibrate, polish, settle, _absorb, prune,
 identify on the call stack). Prints the bench's row (named, right, wall and CPU seconds, load) with
 ``sims`` (per step and ``total``), ``sim_cpu`` (CPU s per step) and ``sims_by_length``.
 
@@ -32,7 +32,7 @@ from hydrowatch.gap import align  # noqa: E402
 from hydrowatch.log import configure  # noqa: E402
 from hydrowatch.recording import SAMPLE_RATE_HZ  # noqa: E402
 
-STEPS = ("calibrate", "screen", "recalibrate", "polish", "settle", "_absorb", "_prune", "identify")
+STEPS = ("calibrate", "screen", "recalibrate", "polish", "settle", "_absorb", "prune", "identify")
 """Analysis steps the simulations are counted by (the innermost on the call stack)."""
 
 

@@ -7,12 +7,13 @@ Synthetic predictions on a 24 s time base (the judge test's layout in test_gap_a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from hydrowatch.gap import backward
 from hydrowatch.gap import diagnose as stepwise
 from hydrowatch.gap import screen as screening
 from hydrowatch.gap.align import AlignedRecording
@@ -67,12 +68,12 @@ def test_an_effect_the_later_one_explains_is_dropped_and_one_still_needed_is_kep
     current = _model(aligned, TRUTH + RIPPLE, 22, ("shaft_compliance", "gear_backlash"))
     # Without compliance the model is as good as with it (backlash explains the ripple): 2 fewer parameters.
     redundant = _model(aligned, TRUTH + RIPPLE + 0.002 * np.sin(0.3 * T), 20, ("gear_backlash",))
-    needed, j = stepwise._still_needed(aligned, redundant, current, _trial("shaft_compliance", current).refit.candidate,
+    needed, j = backward.still_needed(aligned, redundant, current, _trial("shaft_compliance", current).refit.candidate,
                                        0.03, 2.0, 10.0, 0.5)
     assert not needed and abs(j["gain"]) < 0.03
     # Without the ripple's effect the held-out cost rises by far more than 3 %, consistently.
     lacking = _model(aligned, TRUTH, 21, ("shaft_compliance",))
-    needed, j = stepwise._still_needed(aligned, lacking, current, _trial("gear_backlash", current).refit.candidate,
+    needed, j = backward.still_needed(aligned, lacking, current, _trial("gear_backlash", current).refit.candidate,
                                        0.03, 2.0, 10.0, 0.5)
     assert needed and j["gain"] > 0.3 and j["delta_bic"] < -100
 
@@ -82,18 +83,18 @@ def test_an_effect_the_later_one_explains_is_dropped_and_one_still_needed_is_kep
         calls.append(effect_id)
         return redundant if effect_id == "shaft_compliance" else lacking
 
-    monkeypatch.setattr(stepwise, "_without", without)
+    monkeypatch.setattr(backward, "without", without)
     diagnosis = Diagnosis(current, accepted=[_trial("shaft_compliance", current), _trial("gear_backlash", current)])
-    final = stepwise._prune(aligned, diagnosis, current, 0.03, 2.0, 10.0, 0.5)  # type: ignore[arg-type]
+    final = backward.prune(aligned, diagnosis, current, 0.03, 2.0, 10.0, 0.5)  # type: ignore[arg-type]
     assert final is redundant
     assert [t.refit.candidate.id for t in diagnosis.accepted] == ["gear_backlash"]
     assert diagnosis.dropped == ["shaft_compliance"]
     assert calls == ["shaft_compliance"]  # the effect added last is not judged against itself
 
     # With compliance needed too, nothing is dropped.
-    monkeypatch.setattr(stepwise, "_without", lambda *args: lacking)
+    monkeypatch.setattr(backward, "without", lambda *args: lacking)
     diagnosis = Diagnosis(current, accepted=[_trial("shaft_compliance", current), _trial("gear_backlash", current)])
-    assert stepwise._prune(aligned, diagnosis, current, 0.03, 2.0, 10.0, 0.5) is current  # type: ignore[arg-type]
+    assert backward.prune(aligned, diagnosis, current, 0.03, 2.0, 10.0, 0.5) is current  # type: ignore[arg-type]
     assert len(diagnosis.accepted) == 2 and diagnosis.dropped == []
 
 
@@ -209,3 +210,20 @@ def test_an_effect_that_removes_most_of_what_is_left_above_the_noise_pays_whatev
     # a share far above 1 is a noise ceiling lifted to the cost by a misfit's fast content (unit 13, round 1: a
     # quadratic drag beside the unmodelled Stribeck friction), not a majority
     assert not pays({"gain": 0.0271, "explained": 4.76e7}, 0.03, 0.5)
+
+
+def test_a_candidate_that_passed_beside_a_dropped_stand_in_is_owed_a_confirmation() -> None:
+    """Seed 2063 unit 11 (backlash + air): round 1 passed shaft compliance and the air, compliance won and was dropped
+    once round 2 found the backlash; the air then screened below absence in every later round."""
+    aligned = _aligned()
+    model = _model(aligned, TRUTH + RIPPLE, 21, ("gear_backlash",))
+    compliance, air = _trial("shaft_compliance", model), _trial("entrained_air", model)
+    failed = replace(_trial("stribeck_friction", model), passed=False)
+    backlash = _trial("gear_backlash", model)
+    diagnosis = Diagnosis(model, accepted=[backlash], rounds=[[compliance, air, failed], [backlash]],  # type: ignore[arg-type]
+                          dropped=["shaft_compliance"])
+    assert backward.owed(diagnosis, ["shaft_compliance"], model) == {"entrained_air"}  # type: ignore[arg-type]
+    # Nothing is owed when nothing was dropped this time, or when the runner-up is in the model already.
+    assert backward.owed(diagnosis, [], model) == set()  # type: ignore[arg-type]
+    with_air = _model(aligned, TRUTH + RIPPLE, 22, ("gear_backlash", "entrained_air"))
+    assert backward.owed(diagnosis, ["shaft_compliance"], with_air) == set()  # type: ignore[arg-type]

@@ -35,7 +35,9 @@ When no candidate passes but one paid only through the plant parameters refitted
 effect indistinguishable from absent), the current model takes those values (:func:`_absorb`) and,
 since that round was judged against an unconverged model, the candidates get another round.
 After an effect joins a model that holds others, an earlier one that it makes redundant is dropped
-(:func:`_prune`, the backward step of a stepwise selection).
+(:func:`~hydrowatch.gap.backward.prune`, the backward step of a stepwise selection); the candidates that
+passed beside a dropped effect in the round it won are confirmed in the next round wherever they screen
+(:func:`~hydrowatch.gap.backward.owed`).
 When a round passes nothing and absorbs nothing while the model still fails the discovery test, the
 candidates it did not confirm get a **second look** before the remainder is left to ``unidentified``:
 screened again with every calibrated plant parameter free, against the current model refitted the same
@@ -54,8 +56,9 @@ from functools import partial
 import numpy as np
 
 from hydrowatch.gap.align import AlignedRecording
+from hydrowatch.gap.backward import owed, prune
 from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error
-from hydrowatch.gap.candidates import Candidate, Refit, Scan, holdout_cost, untestable
+from hydrowatch.gap.candidates import Candidate, Refit, Scan, untestable
 from hydrowatch.gap.discovery import residual_test
 from hydrowatch.gap.hypothesis import polish, recalibrate, settle
 from hydrowatch.gap.judge import judge, pays
@@ -70,10 +73,6 @@ log = get_logger(__name__)
 
 ABSORB_NFEV = 10
 """Solver iterations of :func:`_absorb`'s refit."""
-
-PRUNE_NFEV = 8
-"""Solver iterations of the refit without an earlier effect (backward step): a redundant effect's
-refit starts next to its optimum and converges in a few; a needed one stays far off in any number."""
 
 WHITE_LIMIT = 3.0
 """Normalised Ljung–Box statistic below which a held-out residual counts as white noise."""
@@ -141,7 +140,8 @@ class Diagnosis:
     scanned_out : list of list of str
         Per round, the candidates no magnitude of which lowered the fitting cost (not fitted further).
     dropped : list of str
-        Effects accepted in an earlier round and dropped once a later one made them redundant (:func:`_prune`).
+        Effects accepted in an earlier round and dropped once a later one made them redundant
+        (:func:`~hydrowatch.gap.backward.prune`).
     """
 
     final: OutputErrorFit
@@ -183,56 +183,6 @@ CONFIRM_SHARE = 0.5
 of the leader's (issue 12, item 5: each confirmation is a full calibration, 40 % of the CPU time of a
 strong effect's analysis before this rule; the winner is the passing confirmation with the largest
 held-out gain, which a runner-up screened at under half the leader's gain is unlikely to be)."""
-
-
-def _without(aligned: AlignedRecording, current: OutputErrorFit, effect_id: str) -> OutputErrorFit:
-    """The current model refitted without one of its effects: the same plant and other effects'
-    coordinates as the start, PRUNE_NFEV solver iterations."""
-    space = current.space
-    keep = [i for i, name in enumerate(space.names) if not name.startswith(f"{effect_id}.")]
-    reduced = replace(space, effects={k: dict(v) for k, v in current.effects.items() if k != effect_id},
-                      effect_free=tuple((e, p) for e, p in space.effect_free if e != effect_id))
-    return fit_output_error(aligned, reduced, current.z[keep], max_nfev=PRUNE_NFEV)
-
-
-def _still_needed(aligned: AlignedRecording, without: OutputErrorFit, current: OutputErrorFit, candidate: Candidate,
-                  min_gain: float, n_se: float, min_bic: float, majority: float) -> tuple[bool, dict[str, float]]:
-    """Whether ``current`` beats the model without ``candidate``'s effect by the acceptance rules of gain,
-    consistency and ΔBIC (the effect, judged last, would still be added), and that judgement."""
-    j = judge(aligned, without, Refit(candidate, current, holdout_cost(aligned, current.prediction)))
-    return pays(j, min_gain, majority) and j["consistency"] > n_se and j["delta_bic"] < -min_bic, j
-
-
-def _prune(aligned: AlignedRecording, diagnosis: Diagnosis, current: OutputErrorFit, min_gain: float,
-           n_se: float, min_bic: float, majority: float) -> OutputErrorFit:
-    """Backward step of the stepwise selection: drop an earlier accepted effect that the one added last
-    makes redundant.
-
-    A round-1 winner can be an effect that stands in for the real one (shaft compliance for gear
-    backlash: both soften the gearbox; seed 2031, backlash + air), and the later round that finds the real
-    effect leaves the stand-in in the model. Each earlier effect is taken out (the model refitted
-    without it, :func:`_without`) and judged as if it were added last; one that no longer passes gain,
-    consistency and ΔBIC is dropped (the one whose removal costs least first, then again), listed in
-    ``diagnosis.dropped`` and not tried again.
-    """
-    while len(diagnosis.accepted) > 1:
-        verdicts = []
-        earlier = diagnosis.accepted[:-1]
-        withouts = side_by_side([partial(_without, aligned, current, t.refit.candidate.id) for t in earlier])
-        for trial, without in zip(earlier, withouts):
-            needed, j = _still_needed(aligned, without, current, trial.refit.candidate, min_gain, n_se, min_bic,
-                                      majority)
-            event(log, "effect still needed", effect=trial.refit.candidate.label, needed=needed,
-                  gain=round(j["gain"], 4), delta_bic=round(j["delta_bic"], 1))
-            if not needed:
-                verdicts.append((j["gain"], trial, without))
-        if not verdicts:
-            break
-        _, trial, without = min(verdicts, key=lambda v: v[0])
-        diagnosis.accepted.remove(trial)
-        diagnosis.dropped.append(trial.refit.candidate.label)
-        current = without
-    return current
 
 
 def _worth_confirming(trials: list[Trial], screen_gain: float, lead: float, candidate: Candidate) -> bool:
@@ -319,10 +269,13 @@ def diagnose(
     diagnosis = Diagnosis(calibrated, unrevealable=untestable(candidates, aligned, calibrated.prediction[1]))
     testable = [c for c in candidates if c.label not in diagnosis.unrevealable]
     current = calibrated
+    owing: frozenset[str] = frozenset()
 
-    def confirm_ranked(screened: list[Screened], floor: float = 0.0) -> list[Trial]:
+    def confirm_ranked(screened: list[Screened], floor: float = 0.0, due: frozenset[str] = frozenset()
+                       ) -> list[Trial]:
         """The round's trials: the best ``confirm`` screened at a gain > ``floor`` get the full calibration under
-        their hypothesis (:func:`_worth_confirming`) and the acceptance rules; the others keep their screening fit."""
+        their hypothesis (:func:`_worth_confirming`) and the acceptance rules, and so do the labels in ``due``
+        (backward.owed) wherever they rank; the others keep their screening fit."""
         trials: list[Trial] = []
         lead = screened[0][0] if screened else 0.0
 
@@ -333,7 +286,8 @@ def diagnose(
         sure = _sure_to_confirm(screened, confirm, floor) if len(screened) > 1 else []
         ahead = dict(zip(sure, side_by_side([partial(full_calibration, screened[r][1]) for r in sure])))
         for rank, (screen_gain, s, data, base) in enumerate(screened):
-            if rank < confirm and screen_gain > floor and _worth_confirming(trials, screen_gain, lead, s.candidate):
+            if s.candidate.label in due or (rank < confirm and screen_gain > floor
+                                            and _worth_confirming(trials, screen_gain, lead, s.candidate)):
                 full = ahead[rank] if rank in ahead else full_calibration(s)
                 j = judge(aligned, current, full)
                 trial = _trial(full, j, False)
@@ -360,7 +314,8 @@ def diagnose(
         scans: dict[str, Scan] = {}
         screened, out = screen(aligned, current, pool, origins, scans=scans)
         diagnosis.scanned_out.append(out)
-        trials = confirm_ranked(screened)
+        trials = confirm_ranked(screened, due=owing)
+        owing = frozenset()
         diagnosis.rounds.append(trials)
         passed = [t for t in trials if t.passed]
         if not passed:
@@ -394,8 +349,12 @@ def diagnose(
         else:
             winner = passed[0]
         diagnosis.accepted.append(winner)
-        current = _prune(aligned, diagnosis, settle(aligned, polished[id(winner)].fit), min_gain, n_se, min_bic,
-                         majority)
+        dropped = len(diagnosis.dropped)
+        current = prune(aligned, diagnosis, settle(aligned, polished[id(winner)].fit), min_gain, n_se, min_bic,
+                        majority)
+        owing = frozenset(owed(diagnosis, diagnosis.dropped[dropped:], current))
+        if owing:
+            event(log, "owed a confirmation", effects=sorted(owing), dropped=diagnosis.dropped[dropped:])
     diagnosis.final = current
     return diagnosis
 
