@@ -84,8 +84,7 @@ def owed(diagnosis: Diagnosis, dropped: list[str], current: OutputErrorFit) -> s
     round 1 passed shaft compliance, gain 0.65, and the air, 0.58; compliance won, was dropped after round 2 found the
     backlash, and the air screened at −440 % to −516 % in every later round, the report naming the backlash alone).
     """
-    labels: set[str] = set()
-    for trials in diagnosis.rounds:
-        if any(t.passed and t.refit.candidate.label in dropped for t in trials):
-            labels |= {t.refit.candidate.label for t in trials if t.passed}
-    return {label for label in labels - set(dropped) if label.split(" ")[0] not in current.effects}
+    return {t.refit.candidate.label for trials in diagnosis.rounds
+            if any(t.passed and t.refit.candidate.label in dropped for t in trials)
+            for t in trials
+            if t.passed and t.refit.candidate.label not in dropped and t.refit.candidate.id not in current.effects}

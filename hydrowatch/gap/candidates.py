@@ -130,6 +130,14 @@ class Candidate:
         base = {name: spec[0] for name, spec in EFFECTS[self.id].parameters.items()}
         return {**base, **self.fixed, **values}
 
+    def starting_effect(self, value: float) -> dict[str, float]:
+        """The effect with ``free[0]`` at a scanned starting ``value`` (a Stribeck breakaway torque never below its
+        Coulomb level: ``Tc`` clipped to it)."""
+        effect = self.effect(**{self.free[0]: value})
+        if self.id == "stribeck_friction":
+            effect["Tc"] = min(effect["Tc"], value)
+        return effect
+
 
 def _grid(lo: float, hi: float, n: int) -> tuple[float, ...]:
     """n log-spaced scan values from lo to hi."""
@@ -287,14 +295,8 @@ def _grid_costs(aligned: AlignedRecording, base: OutputErrorFit, candidate: Cand
                 points: list[tuple[PlantParameters, float]]) -> np.ndarray:
     """The fitting cost of the base model's effects plus the candidate at each (plant parameters, magnitude of
     ``free[0]``), one batched simulation."""
-    name = candidate.free[0]
-    models = []
-    for params, v in points:
-        effect = candidate.effect(**{name: v})
-        if candidate.id == "stribeck_friction":
-            effect["Tc"] = min(effect["Tc"], v)
-        models.append((params, {**base.effects, candidate.id: effect}))
-    preds = simulate_sensors(aligned, [m[0] for m in models], [m[1] for m in models])
+    preds = simulate_sensors(aligned, [params for params, _ in points],
+                             [{**base.effects, candidate.id: candidate.starting_effect(v)} for _, v in points])
     return np.array([_fit_cost(aligned, p) for p in preds])
 
 
@@ -351,9 +353,7 @@ def refit(
         params, start, change = scanned or scan_magnitude(aligned, base, candidate, origins)
         if require_gain and change >= 0.0:
             return None
-        effect = candidate.effect(**{candidate.free[0]: start})
-        if candidate.id == "stribeck_friction":
-            effect["Tc"] = min(effect["Tc"], start)
+        effect = candidate.starting_effect(start)
     effects: dict[str, dict[str, float]] = {**{k: dict(v) for k, v in base.effects.items()}, candidate.id: effect}
     accepted_free = tuple((e, p) for e, p in base.space.effect_free if e != candidate.id)
     space = ModelSpace(params, effects, plant_free,

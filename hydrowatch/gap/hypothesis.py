@@ -9,7 +9,7 @@ from functools import partial
 
 from hydrowatch.gap.align import AlignedRecording
 from hydrowatch.gap.calibrate import OutputErrorFit, fit_output_error, prior_weight, static_stage
-from hydrowatch.gap.candidates import Refit, Scan, holdout_cost, scan_starts
+from hydrowatch.gap.candidates import Refit, Scan, holdout_cost, scan_magnitude, scan_starts
 from hydrowatch.gap.side_by_side import side_by_side
 from hydrowatch.gap.space import ModelSpace
 from hydrowatch.log import event, get_logger
@@ -83,7 +83,7 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     if design_start:
         static, prediction = static_stage(aligned, design, free=free, effects=effects, max_nfev=STAGE_NFEV,
                                           pump=pump if "Dp" in free else None)
-        scans = [min(scan_starts(aligned, current, scanned, [static]), key=lambda sc: sc[2])]
+        scans = [scan_magnitude(aligned, current, scanned, [static])]
         weight = prior_weight(aligned, prediction) if prior else 0.0
     else:
         static = None
@@ -94,9 +94,7 @@ def recalibrate(aligned: AlignedRecording, current: OutputErrorFit, screened: Re
     racers = [best, *(sc for sc in scans if sc is not best and _disagree(sc[1], best[1]))]
 
     def space_from(scan: Scan) -> ModelSpace:
-        start_effects = {**effects, c.id: scanned.effect(**{c.free[0]: scan[1]})}
-        if c.id == "stribeck_friction":
-            start_effects[c.id]["Tc"] = min(start_effects[c.id]["Tc"], scan[1])
+        start_effects = {**effects, c.id: scanned.starting_effect(scan[1])}
         return ModelSpace(scan[0], start_effects, free, effect_free, design if prior else None, weight)
 
     start, value = best[0], best[1]
