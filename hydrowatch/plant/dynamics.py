@@ -316,3 +316,53 @@ def rates(c: np.ndarray, e: np.ndarray, s: np.ndarray, u: float, t: float, clock
         ds[i] = d[i]
     for i in range(3):
         sensors[i] = raw[i]
+
+
+@njit(cache=True, error_model="numpy")
+def fastest_rate(c: np.ndarray, e: np.ndarray) -> float:
+    """Upper estimate of the largest eigenvalue magnitude of the right-hand side's Jacobian, 1/s.
+
+    The fixed-step integrator is stable only while h·|λ| stays inside RK4's region (2.79 on the negative real
+    axis): a model whose fastest mode is beyond it does not settle, it rings in a limit cycle that the kink
+    bisection then chases every step (issue 12, item 5: a calibration that visited relief gain ×3 and supply volume
+    ×0.5 put h·λ at 3.7 and ran 20–30× slower, on a trajectory that is not the model's). Terms, each a mode's rate
+    from the parameters alone (the larger of each mode's real rate and its natural frequency):
+
+    - supply line with the relief open (Eqs. 1, 2, 5): βe/Vs·(Kr + (Cp + Cvl)·leak);
+    - motor chambers (Eq. 6): 4βe/Vt·(Cvx + Ctm)·leak, and the hydraulic resonance √(4βe·Dm²/(Vt·Jm)) (motor
+      inertia alone: an upper bound for the rigid and the flexible driveline);
+    - spool (Eq. 3): ωv·(ζv + √max(ζv² − 1, 0));
+    - flexible driveline (gear_backlash, shaft_compliance; springs in series as in :func:`shaft_torque`):
+      √(ωh² + K·a) (the oil's and the shaft's springs both act on the motor: ωh the hydraulic resonance) and c·a,
+      with a = 1/(N²·η·Jm) + 1/JL; motor damping Bm/Jm·thick;
+    - sensor_lowpass: 1/τ.
+
+    ``leak`` and ``thick`` are thermal_drift's largest leakage and viscosity factors over the warm-up (1 without
+    it). Entrained air only softens the oil (a lower modulus), so βe bounds it. Left out, as they depend on the state
+    and not only on the parameters: the valve's flow conductance (Eq. 4) and gear_backlash's contact-damping ramp
+    (c·|θ'|/δ0 while entering contact).
+    """
+    leak, thick = 1.0, 1.0
+    if e[_THERMAL] > 0.5:
+        leak = math.exp(e[_THERMAL + 4] * (max(e[_THERMAL + 1], e[_THERMAL + 2]) - _T_REF))
+        thick = math.exp(e[_THERMAL + 4] * (_T_REF - min(e[_THERMAL + 1], e[_THERMAL + 2])))
+    rate = c[C_BE_VS] * (c[C_KR] + (c[C_CPUMP] + c[C_CVL]) * leak)
+    rate = max(rate, c[C_4_VT] * c[C_BE] * (c[C_CVX] + c[C_CTM]) * leak)
+    hydraulic = c[C_4_VT] * c[C_BE] * c[C_DM] * c[C_DM] * c[C_INV_JM]  # resonance², 1/s²
+    rate = max(rate, math.sqrt(hydraulic))
+    wv = math.sqrt(c[C_WV2])
+    zeta = c[C_DAMP] / (2.0 * wv)
+    rate = max(rate, wv * (zeta + math.sqrt(max(zeta * zeta - 1.0, 0.0))))
+    rate = max(rate, c[C_BM] * c[C_INV_JM] * thick)
+    if e[_BACKLASH] > 0.5 or e[_SHAFT] > 0.5:
+        mobility = c[C_INV_NETA] * c[C_INV_N] * c[C_INV_JM] + c[C_INV_JL]
+        if e[_SHAFT] > 0.5:
+            stiffness, damping = e[_SHAFT + 1], e[_SHAFT + 2]
+        else:
+            stiffness, damping = e[_BACKLASH + 2], e[_BACKLASH + 3]
+        if e[_SHAFT] > 0.5 and e[_BACKLASH] > 0.5:
+            stiffness = 1.0 / (1.0 / stiffness + 1.0 / e[_BACKLASH + 2])
+        rate = max(rate, math.sqrt(hydraulic + stiffness * mobility), damping * mobility)
+    if e[_LOWPASS] > 0.5:
+        rate = max(rate, 1.0 / e[_LOWPASS + 2])
+    return rate

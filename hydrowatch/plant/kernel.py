@@ -9,8 +9,9 @@ Per sample k of one machine (time t_k = t0 + k/fs):
    time that is not a whole number of samples the held command switches once inside the
    interval; the interval is split there so the integrator never steps across a switch.
 
-Each segment uses ceil(length / h) equal RK4 steps with h = 1 / (fs · substeps). After every step
-the pressures are projected onto Ps >= 0, |PL| <= Ps. Everything the next sample needs is in the
+Each segment uses ceil(length / h) equal RK4 steps with h = 1 / (fs · substeps), or shorter for a machine whose
+fastest mode would leave RK4's stability region (h·|λ| > ``STABLE_STEP``; a stiff relief or shaft, issue 12 item 5).
+After every step the pressures are projected onto Ps >= 0, |PL| <= Ps. Everything the next sample needs is in the
 state row, so chunked calls equal one long call bit for bit.
 
 Speed: inside a segment the ODE state is a tuple of floats, and the right-hand side
@@ -56,6 +57,7 @@ from hydrowatch.plant.dynamics import (
     X,
     coefficients,
     derivatives,
+    fastest_rate,
     shaft_torque,
 )
 from hydrowatch.plant.effects import EFFECT_OFFSET, REFERENCE_TEMPERATURE_C
@@ -87,6 +89,10 @@ _DEADBAND = EFFECT_OFFSET["valve_deadband"]
 _BACKLASH = EFFECT_OFFSET["gear_backlash"]
 _BISECTIONS = 12
 _SPLITS = 4
+STABLE_STEP = 2.0
+"""Largest h·|λ| a machine's RK4 step may take (its fastest mode, :func:`~hydrowatch.plant.dynamics.fastest_rate`);
+RK4's stability edge is 2.79 on the negative real axis and 2.83 on the imaginary one. Beyond it the machine's step
+shrinks below 1 / (fs · substeps)."""
 _T_NOMINAL = REFERENCE_TEMPERATURE_C
 
 
@@ -227,7 +233,7 @@ def advance(params: np.ndarray, effects: np.ndarray, state: np.ndarray, command:
     t0 : float
         Time of sample count 0, s.
     substeps : int
-        RK4 steps per sample interval (h = 1 / (fs · substeps)).
+        RK4 steps per sample interval (h = 1 / (fs · substeps); more for a stiff machine, see ``STABLE_STEP``).
     clock : bool
         False: settle mode, the sample counter and the oil temperature do not advance.
 
@@ -263,6 +269,7 @@ def _advance_compiled(params, effects, state, command, noise, out, fs, t0, subst
         p = params[m]
         coefficients(p, coef)
         e = effects[m]
+        h_m = min(h_max, STABLE_STEP / fastest_rate(coef, e))
         s = state[m]
         y = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8])
         hysteresis = e[_HYSTERESIS] > 0.5
@@ -313,12 +320,12 @@ def _advance_compiled(params, effects, state, command, noise, out, fs, t0, subst
             out[m, k, _TEMPERATURE] = y[TEMP] if e[_THERMAL] > 0.5 else _T_NOMINAL
             # 3. integrate over the sample interval
             if delay and frac > 0.0:
-                y = _rk4_segment(coef, e, y, k1, u_first, t, frac * dt, h_max, clock)
+                y = _rk4_segment(coef, e, y, k1, u_first, t, frac * dt, h_m, clock)
                 t_switch = t + frac * dt
                 k1 = derivatives(coef, e, y, u_now, t_switch, clock)[0]
-                y = _rk4_segment(coef, e, y, k1, u_now, t_switch, (1.0 - frac) * dt, h_max, clock)
+                y = _rk4_segment(coef, e, y, k1, u_now, t_switch, (1.0 - frac) * dt, h_m, clock)
             else:
-                y = _rk4_segment(coef, e, y, k1, u_now, t, dt, h_max, clock)
+                y = _rk4_segment(coef, e, y, k1, u_now, t, dt, h_m, clock)
             if clock:
                 s[COUNT] += 1.0
             elif steady and s[HYST] == hyst_before and _same_bits(y, y_before):
