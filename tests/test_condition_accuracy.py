@@ -14,6 +14,7 @@ from test_condition_model import CHANNELS
 from hydrowatch.condition import ConditionFeatures, ConditionModel, EvidenceLayout, pooled_windows, trailing_evidence
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.evidence import operating_points, trailing_count, trailing_spans, trailing_support
+from hydrowatch.condition.ratios import NO_OTHER_EXPLANATION
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import fault_parameters, severity_for_speed_drop, state_parameters
@@ -38,7 +39,7 @@ def run(params: list[PlantParameters], command: np.ndarray, seed: int) -> list[n
 def test_the_level_prior_enters_a_pool_once():
     # 2 states, 1 relation; state 1's own fault in column 1; its level box ratio is 4 in both windows.
     layout = EvidenceLayout(columns=np.array([-1, 1]), bounds=np.array([[[0, 0], [0.2, 0.4]], [[0, 0], [0.29, 0.31]]]))
-    rows = np.array([[2.0, 1.0, 1.0, 4.0, 0.0, 0.30, 0.0, 100.0] + [E.NO_OTHER_EXPLANATION] * 4] * 2)
+    rows = np.array([[2.0, 1.0, 1.0, 4.0, 0.0, 0.30, 0.0, 100.0] + [NO_OTHER_EXPLANATION] * 4] * 2)
     g, a = trailing_evidence(rows, 2, layout)
     np.testing.assert_allclose(g[0], [2.0, 1.0, 1.0, 4.0])  # one window: the per-window rule
     np.testing.assert_allclose(g[1], [2.0, 1.0, 1.0, 2.0])  # two: evidence averaged, the prior 4^(1/2)

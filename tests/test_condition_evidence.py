@@ -16,7 +16,6 @@ from hydrowatch.condition import (
     EvidenceSmoother,
     trailing_evidence,
 )
-from hydrowatch.condition.estimates import NO_OTHER_EXPLANATION
 from hydrowatch.condition.evidence import (
     HOLD_SPAN,
     SEVERITY_TOLERANCE,
@@ -27,6 +26,7 @@ from hydrowatch.condition.evidence import (
     trailing_support,
 )
 from hydrowatch.condition.model import CLEAR_FACTOR, CLEAR_WINDOWS, POOLED_EXCESS
+from hydrowatch.condition.ratios import NO_OTHER_EXPLANATION
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 

@@ -40,6 +40,7 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
+from hydrowatch.condition import ratios as R
 from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
 from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_oil_box, oil_box, oil_parts
@@ -247,7 +248,7 @@ class ConditionFeatures(EvidenceRows):
     def _box(self, state: str, p: PlantParameters, narrow: bool = False,
              margin: float = 0.0) -> dict[str, tuple[float, float]]:
         """A state's band box (``margin`` widens its own fault's band further), or with ``narrow`` its level box."""
-        box = E.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
+        box = R.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
                           BAND_MARGIN + margin)
         return free_relief(box, self.relief_spread_) if self._follows_relief(state) else box
 
@@ -291,7 +292,7 @@ class ConditionFeatures(EvidenceRows):
         return tuple({s: oil_box(b, self.nominal_, factors) for s, b in boxes.items()}
                      for boxes in (self.boxes_, self.level_boxes_))
 
-    def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]:
+    def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[R.FillGroup]]:
         """Valid-window mask (n,) and the fill groups of the valid windows (nominal fill first; [] if none valid)
         of checked windows ``w`` of one oil part (:meth:`_by_oil`).
 
@@ -310,7 +311,7 @@ class ConditionFeatures(EvidenceRows):
             fill = self.nominal_ if key == "nominal" else self._fill(key)
             sig = E.window_signals(w[ok], self.sensors, self.nominal_, self.viscosity_coefficient, fill)
             # Only load and motor states get their own fill; their boxes hold the valve at nominal.
-            groups.append(E.FillGroup(tuple(states), sig, E.parity_estimates(sig, self.nominal_, key == "nominal")))
+            groups.append(R.FillGroup(tuple(states), sig, E.parity_estimates(sig, self.nominal_, key == "nominal")))
         return ok, groups
 
     def transform(self, windows: np.ndarray) -> np.ndarray:
@@ -334,12 +335,12 @@ class ConditionFeatures(EvidenceRows):
         """
         return self.transform_evidence(windows)[:, : 2 * len(self.feature_names_)]
 
-    def _ratios(self, groups: Sequence[E.FillGroup], known: bool, sets: int = 2
+    def _ratios(self, groups: Sequence[R.FillGroup], known: bool, sets: int = 2
                 ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]:
-        """:func:`hydrowatch.condition.estimates.state_ratios` for the first ``sets`` of the box sets (band, level),
+        """:func:`hydrowatch.condition.ratios.state_ratios` for the first ``sets`` of the box sets (band, level),
         of windows with the oil temperature (``known``) or without it (:meth:`_box_of`)."""
         boxes = (self.boxes_, self.level_boxes_)[:sets]
-        ratios, free, others = E.state_ratios(
+        ratios, free, others = R.state_ratios(
             groups, self.nominal_, self.relations_,
             [[self._box_of(state, b[state], known) for state in self.states_] for b in boxes], self._own_faults())
         stalled = self._stalled(groups)  # near standstill with ωs left to its prior the load relation is not judged
@@ -348,7 +349,7 @@ class ConditionFeatures(EvidenceRows):
         return ratios, free, others
 
 
-    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> E.BoxOf:
+    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> R.BoxOf:
         """``box`` as the windows judge it: without the oil temperature its leak ranges widened by the oil's range
         (:mod:`hydrowatch.condition.oil`), per window by what the motor's leakage tells of the oil unless the state
         is a motor leak (:func:`~hydrowatch.condition.oil.motor_factors`); for a state that follows the relief, its
@@ -361,8 +362,8 @@ class ConditionFeatures(EvidenceRows):
             return box
         p, blocks = self.nominal_, (self.window - 1) // E.parity.BLOCK
 
-        def of(est: E.ParityEstimates) -> E.Box:
-            out: E.Box = box if oil is None else motor_oil_box(
+        def of(est: E.ParityEstimates) -> R.Box:
+            out: R.Box = box if oil is None else motor_oil_box(
                 box, p, est.severity["motor_leak"],
                 E.severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], blocks), oil)
             return out if scale is None else scaled_load_box(out, *window_factors(

@@ -15,6 +15,7 @@ import numpy as np
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
+from hydrowatch.condition import ratios as R
 from hydrowatch.condition.evidence import STATE_COLUMNS, EvidenceLayout
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.relief import window_factors
@@ -42,9 +43,9 @@ class EvidenceRows:
     if TYPE_CHECKING:  # ConditionFeatures provides these
         def _check_fitted(self) -> None: ...
         def _by_oil(self, windows: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]: ...
-        def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[E.FillGroup]]: ...
+        def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[R.FillGroup]]: ...
         def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]: ...
-        def _ratios(self, groups: list[E.FillGroup], known: bool, sets: int = 2
+        def _ratios(self, groups: list[R.FillGroup], known: bool, sets: int = 2
                     ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]: ...
         def _follows_relief(self, state: str) -> bool: ...
         def _load_scale(self) -> LoadScale: ...
@@ -56,7 +57,7 @@ class EvidenceRows:
         state the free estimate of its own fault's severity (n_states), then that fault's curvature
         d(MSE)/d(s²) over its relation's free MSE, 1/severity² (n_states; 0 for healthy), then the ratio of the
         state's own valve relation explained by the other valve-side faults in its band box and in its level box
-        (2 · n_states; :data:`~hydrowatch.condition.estimates.NO_OTHER_EXPLANATION` where its own fault is not
+        (2 · n_states; :data:`~hydrowatch.condition.ratios.NO_OTHER_EXPLANATION` where its own fault is not
         valve-side: nothing else explains that relation). See
         :mod:`hydrowatch.condition.evidence` and :meth:`evidence_layout` (of the windows' oil part).
         """
@@ -110,7 +111,7 @@ class EvidenceRows:
         out[ok] = np.concatenate([band, level, severity, weight, band_others, level_others], axis=1)
         return out, ok, groups[0].estimates  # the nominal fill comes first (:meth:`_estimates`)
 
-    def _stalled(self, groups: Sequence[E.FillGroup]) -> np.ndarray:
+    def _stalled(self, groups: Sequence[R.FillGroup]) -> np.ndarray:
         """Valid windows whose load relation is not judged (:mod:`hydrowatch.condition.standstill`), shape (m,)."""
         return stalled(groups, self.nominal_.omega_s, getattr(self, "brake_open_", False))
 

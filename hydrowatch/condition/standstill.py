@@ -25,7 +25,7 @@ import numpy as np
 from hydrowatch.condition.determinacy import STANDSTILL
 
 if TYPE_CHECKING:  # estimates is in the features' import cycle (tests/test_layers.py)
-    from hydrowatch.condition.estimates import FillGroup
+    from hydrowatch.condition.ratios import FillGroup
 
 MIN_SHARE = 0.05
 """Smallest share of a window's samples within :data:`~hydrowatch.condition.determinacy.STANDSTILL` × ωs of standstill
