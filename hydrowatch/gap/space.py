@@ -33,7 +33,8 @@ SCALE_BOUND = 3.0
 with a prior) or else from their starting value. Design-relative since issue 12's third pass: a
 hypothesis's fit that starts from an already moved model could reach a relief gain Kr ×5.6 with a
 spool ×3.5 faster (population 2034), where each simulation took 1.4 s instead of 0.07 s (RK4 steps
-split at the relief valve's kink every step)."""
+split at the relief valve's kink every step). That slowness had a cause of its own, mended in the kernel since: the
+fixed step was outside RK4's stability region for so stiff a relief (``plant.kernel.STABLE_STEP``)."""
 
 
 @dataclass(frozen=True)
