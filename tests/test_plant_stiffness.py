@@ -78,8 +78,9 @@ def test_the_fastest_rate_bounds_the_jacobians_eigenvalues(factors: dict, effect
 
 
 def test_every_unit_of_the_default_populations_keeps_the_fixed_step() -> None:
-    """Units ±30 % (the gap population) and the unseen-units population stay well inside the region, so their
-    simulations are the fixed-step ones bit for bit."""
+    """Units ±30 % in every parameter (as the gap benchmark draws them) and :func:`random_unit`'s defaults (±20 %,
+    leakages and damping ±50 %) stay well inside the region, so their simulations are the fixed-step ones bit for
+    bit."""
     h = 1.0 / (FS * DEFAULT_SUBSTEPS)
     e = effect_row(resolve_effects(None))
     worst = 0.0
