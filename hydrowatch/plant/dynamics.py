@@ -133,6 +133,17 @@ def _load_torque(c: np.ndarray, e: np.ndarray, w: float) -> float:
     return torque
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def driveline_spring(e: np.ndarray) -> tuple[float, float]:
+    """Stiffness [N·m/rad] and damping [N·m·s/rad] of a flexible driveline: shaft_compliance's G and c, gear_backlash's
+    contact K and c, or with both the two springs in series and the shaft's damping."""
+    if e[_SHAFT] <= 0.5:
+        return e[_BACKLASH + 2], e[_BACKLASH + 3]
+    if e[_BACKLASH] <= 0.5:
+        return e[_SHAFT + 1], e[_SHAFT + 2]
+    return 1.0 / (1.0 / e[_SHAFT + 1] + 1.0 / e[_BACKLASH + 2]), e[_SHAFT + 2]
+
+
 @njit(cache=True, error_model="numpy")
 def shaft_torque(e: np.ndarray, theta: float, slip: float) -> float:
     """Torque through a flexible driveline (gear_backlash and/or shaft_compliance), N·m.
@@ -153,13 +164,9 @@ def shaft_torque(e: np.ndarray, theta: float, slip: float) -> float:
     with penetration (c·min(|δ|/δ0, 1), δ0 = 1 mrad, so contact starts without a force jump)
     and teeth in contact never pull. Backlash and shaft springs in series when both are on.
     """
-    if e[_SHAFT] > 0.5:
-        stiffness, damping = e[_SHAFT + 1], e[_SHAFT + 2]
-        if e[_BACKLASH] <= 0.5:
-            return stiffness * theta + damping * slip
-        stiffness = 1.0 / (1.0 / stiffness + 1.0 / e[_BACKLASH + 2])
-    else:
-        stiffness, damping = e[_BACKLASH + 2], e[_BACKLASH + 3]
+    stiffness, damping = driveline_spring(e)
+    if e[_BACKLASH] <= 0.5:
+        return stiffness * theta + damping * slip
     penetration = math.copysign(max(abs(theta) - e[_BACKLASH + 1], 0.0), theta)
     torque = stiffness * penetration + damping * min(abs(penetration) / CONTACT_DEPTH, 1.0) * slip
     return torque if torque * penetration > 0.0 else 0.0
@@ -332,7 +339,7 @@ def fastest_rate(c: np.ndarray, e: np.ndarray) -> float:
     - motor chambers (Eq. 6): 4βe/Vt·(Cvx + Ctm)·leak, and the hydraulic resonance √(4βe·Dm²/(Vt·Jm)) (motor
       inertia alone: an upper bound for the rigid and the flexible driveline);
     - spool (Eq. 3): ωv·(ζv + √max(ζv² − 1, 0));
-    - flexible driveline (gear_backlash, shaft_compliance; springs in series as in :func:`shaft_torque`):
+    - flexible driveline (:func:`driveline_spring`):
       √(ωh² + K·a) (the oil's and the shaft's springs both act on the motor: ωh the hydraulic resonance) and c·a,
       with a = 1/(N²·η·Jm) + 1/JL; motor damping Bm/Jm·thick;
     - sensor_lowpass: 1/τ.
@@ -344,8 +351,8 @@ def fastest_rate(c: np.ndarray, e: np.ndarray) -> float:
     """
     leak, thick = 1.0, 1.0
     if e[_THERMAL] > 0.5:
-        leak = math.exp(e[_THERMAL + 4] * (max(e[_THERMAL + 1], e[_THERMAL + 2]) - _T_REF))
-        thick = math.exp(e[_THERMAL + 4] * (_T_REF - min(e[_THERMAL + 1], e[_THERMAL + 2])))
+        leak = _thermal(e, max(e[_THERMAL + 1], e[_THERMAL + 2]), False)[0]
+        thick = 1.0 / _thermal(e, min(e[_THERMAL + 1], e[_THERMAL + 2]), False)[0]
     rate = c[C_BE_VS] * (c[C_KR] + (c[C_CPUMP] + c[C_CVL]) * leak)
     rate = max(rate, c[C_4_VT] * c[C_BE] * (c[C_CVX] + c[C_CTM]) * leak)
     hydraulic = c[C_4_VT] * c[C_BE] * c[C_DM] * c[C_DM] * c[C_INV_JM]  # resonance², 1/s²
@@ -356,12 +363,7 @@ def fastest_rate(c: np.ndarray, e: np.ndarray) -> float:
     rate = max(rate, c[C_BM] * c[C_INV_JM] * thick)
     if e[_BACKLASH] > 0.5 or e[_SHAFT] > 0.5:
         mobility = c[C_INV_NETA] * c[C_INV_N] * c[C_INV_JM] + c[C_INV_JL]
-        if e[_SHAFT] > 0.5:
-            stiffness, damping = e[_SHAFT + 1], e[_SHAFT + 2]
-        else:
-            stiffness, damping = e[_BACKLASH + 2], e[_BACKLASH + 3]
-        if e[_SHAFT] > 0.5 and e[_BACKLASH] > 0.5:
-            stiffness = 1.0 / (1.0 / stiffness + 1.0 / e[_BACKLASH + 2])
+        stiffness, damping = driveline_spring(e)
         rate = max(rate, math.sqrt(hydraulic + stiffness * mobility), damping * mobility)
     if e[_LOWPASS] > 0.5:
         rate = max(rate, 1.0 / e[_LOWPASS + 2])
