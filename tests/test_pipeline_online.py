@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydrowatch.condition import parity, supply, windows_from_recording
+from hydrowatch.condition import parity, severity_search, supply, windows_from_recording
 from hydrowatch.condition.stream import ConditionStream, judge_streams
 from hydrowatch.errors import ParameterError
 from hydrowatch.health.plan import DataPlan
@@ -355,19 +355,20 @@ def test_spool_filter_cache_and_compiled_kernel_equal_the_direct_computation() -
     f, base = np.ones(3), supply.constants(p, 200.0)
     outputs = []
     for compiled in (True, False):
-        names = ("_valve_flow", "_equilibrium", "_step", "_sweep")
-        saved = {k: getattr(supply, k) for k in names}
+        kernels = [(supply, k) for k in ("_valve_flow", "_equilibrium", "_step", "sweep")] + [
+            (severity_search, k) for k in ("sweep", "_lowest", "_flat_ends", "_past_flat")]
+        saved = [(module, k, getattr(module, k)) for module, k in kernels]
         try:
             if not compiled:
-                for k in names:
-                    setattr(supply, k, saved[k].py_func)
-            fit = supply.fit_windows if compiled else supply.fit_windows.py_func
+                for module, k, kernel in saved:
+                    setattr(module, k, kernel.py_func)
+            fit = severity_search.fit_windows if compiled else severity_search.fit_windows.py_func
             s, mse, curv = np.empty(3), np.empty(3), np.empty(3)
-            fit(0, -0.05, 3.0, 7, 4, g, np.ascontiguousarray(pl), q, f, base, 8, s, mse, curv)
+            fit(0, -0.05, 3.0, 7, 4, True, g, np.ascontiguousarray(pl), q, f, base, 8, s, mse, curv)
             outputs.append(np.concatenate([s, mse, curv]))
         finally:
-            for k, v in saved.items():
-                setattr(supply, k, v)
+            for module, k, kernel in saved:
+                setattr(module, k, kernel)
     np.testing.assert_allclose(outputs[0], outputs[1], rtol=1e-12, atol=1e-18)
 
 

@@ -203,39 +203,46 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
         if nominal is None:
             severity[fault], mse[fault], curvature[fault] = parity.valve_fit(sig.flow, sig.spool, sig.load_pressure,
                                                                              p, fault, leak=sig.leak,
-                                                                             pl_noise=sig.pl_noise)
+                                                                             pl_noise=sig.pl_noise, flat_search=False)
         else:
             severity[fault], mse[fault], curvature[fault] = np.zeros(nominal.size), nominal, np.zeros(nominal.size)
     if nominal is None:
         best = np.min([mse[f] for f in parity.VALVE_HYPOTHESES], axis=0)
         for fault in parity.VALVE_HYPOTHESES:
-            severity[fault], mse[fault], curvature[fault] = _refit_at_limits(sig, p, fault, severity[fault],
+            severity[fault], mse[fault], curvature[fault] = _refit_poor_fits(sig, p, fault, severity[fault],
                                                                              mse[fault], curvature[fault], best)
     return ParityEstimates(severity, mse, curvature)
 
 
-def _refit_at_limits(sig: WindowSignals, p: PlantParameters, fault: str, severity: np.ndarray, mse: np.ndarray,
+def _refit_poor_fits(sig: WindowSignals, p: PlantParameters, fault: str, severity: np.ndarray, mse: np.ndarray,
                      curvature: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Search again, on a :data:`REFIT_GRID`-point coarse grid, the windows whose fit ended on a search limit
-    more than :data:`REFIT_EXCESS` × worse than the best valve hypothesis ``best`` (m,).
+    """Search again, on a :data:`REFIT_GRID`-point coarse grid and past flat stretches, the windows whose fit ended
+    on a search limit or on a flat stretch (curvature 0: the first search leaves flat stretches alone) more than
+    :data:`REFIT_EXCESS` × worse than the best valve hypothesis ``best`` (m,).
 
     Near pump saturation the relief barely cracks: a relief_spring (or valve_coil) residual is
-    flat over every severity that keeps the relief shut and has a narrow valley (about 0.1 wide)
-    at the true one, which the default 7-point coarse grid (0.24 apart) steps over; the fit then
-    stops on the plateau's first point, the lower search limit, and the true state's own box
+    flat over every severity that keeps the relief shut and has a narrow valley at the true one, about twice as wide
+    as the true severity's distance from the stretch's end, which the default 7-point coarse grid (0.24 apart) and
+    its local grid (0.08) step over; the fit then stops on the plateau, and the true state's own box
     looks 10–100× worse than a look-alike's. The finer grid (0.08 apart for relief_spring: 13
-    points still missed the valley of a spring fault at a 12.5 % drop held at 3.9 V) finds it; the
-    better of the two fits is kept. A fit on a limit that explains the window about as well as
+    points still missed the valley of a spring fault at a 12.5 % drop held at 3.9 V) and the search past the
+    plateau's ends (:func:`hydrowatch.condition.severity_search.fit_windows`) find it; the
+    better of the two fits is kept. A fit on a limit or a plateau that explains the window about as well as
     the best hypothesis is a plateau with nothing to find and is left alone; so 26 of 260 windows
-    of a 0–4 V duty cycle (13 states) are searched again for one hypothesis, 21 of them pump_leak
+    of a 0–4 V duty cycle (13 states) were searched again for one hypothesis, 21 of them pump_leak
     fits that end 2× better, and none of filtered noise: +0–5 % CPU with three sensors, +5–15 %
-    with torque only (its filled flow leaves more fits on a limit).
+    with torque only (its filled flow leaves more fits on a limit). Until 2026-12-01 only fits on a limit were
+    searched again, and of equal costs the search kept the first (the lower limit); a relief whose plateau did not
+    reach the limit (a valley missed from −0.26 or −0.02) stayed on it, 417× the coil's MSE in one window of a
+    tuning relief path (seed 2054 unit 2), and the pool blamed the coil for the next 60 windows
+    (docs/degradation.md). Searching past every plateau in the first search cost +27–55 % CPU per window.
     """
     if fault in parity.LINEAR_HYPOTHESES:
         return severity, mse, curvature
     lo, hi = parity.SEVERITY_LIMITS[fault]
     edge = 1e-9 * (hi - lo)
-    again = np.flatnonzero(((severity <= lo + edge) | (severity >= hi - edge)) & (mse > REFIT_EXCESS * best))
+    stuck = (severity <= lo + edge) | (severity >= hi - edge) | (curvature <= 0.0)
+    again = np.flatnonzero(stuck & (mse > REFIT_EXCESS * best))
     if again.size:
         noise = None if sig.pl_noise is None else sig.pl_noise[again]
         s2, m2, c2 = parity.valve_fit(sig.flow[again], sig.spool[again], sig.load_pressure[again], p, fault,

@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit
 
 from hydrowatch.channels import M3S_TO_LPM
-from hydrowatch.condition import supply
+from hydrowatch.condition import severity_search, supply
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import REFERENCE_TEMPERATURE_C
 from hydrowatch.plant.parameters import PlantParameters
@@ -376,7 +376,7 @@ def valve_relation(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: Plant
     :func:`valve_fit` also returns the fit's curvature.
 
     The severity minimising the block-averaged flow residual over :data:`SEVERITY_LIMITS` is found
-    per window by :func:`hydrowatch.condition.supply.fit_windows`: a coarse grid, a local grid
+    per window by :func:`hydrowatch.condition.severity_search.fit_windows`: a coarse grid, a local grid
     around its best point, then damped Gauss-Newton steps; ``valve_leak`` (linear in its
     severity) by exact least squares.
     """
@@ -386,15 +386,19 @@ def valve_relation(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: Plant
 
 def valve_fit(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str,
               grid: int = 7, iterations: int = 4, leak: float | np.ndarray = 1.0,
-              sample_rate: float = SAMPLE_RATE_HZ,
-              pl_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              sample_rate: float = SAMPLE_RATE_HZ, pl_noise: np.ndarray | None = None,
+              flat_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`valve_relation`'s severity, mean squared residual, (L/min)², and curvature d(MSE)/d(s²), each (m,);
-    with ``pl_noise`` the MSE at the fitted severity less what P̂L's measured noise adds (:func:`without_noise`)."""
+    with ``pl_noise`` the MSE at the fitted severity less what P̂L's measured noise adds (:func:`without_noise`).
+    ``flat_search`` False leaves out the search past a flat stretch's ends
+    (:func:`~hydrowatch.condition.severity_search.fit_windows`): a fit left on a stretch then has curvature 0, and
+    :func:`~hydrowatch.condition.estimates.parity_estimates` searches again only those that explain the window worse
+    than another hypothesis."""
     if grid < 3 or iterations < 0:
         raise ParameterError(f"grid must be >= 3 and iterations >= 0. Got {grid}, {iterations}; defaults 7, 4.")
     lo, hi = SEVERITY_LIMITS[fault]
     g, pl_c, q, f = _kernel_inputs(flow, spool, pl, p, leak)
     s, mse, curvature = (np.empty(flow.shape[0]) for _ in range(3))
-    supply.fit_windows(supply.HYPOTHESIS_CODES[fault], lo, hi, grid, iterations, g, pl_c, q, f,
-                       supply.constants(p, sample_rate), BLOCK, s, mse, curvature)
+    severity_search.fit_windows(supply.HYPOTHESIS_CODES[fault], lo, hi, grid, iterations, flat_search, g, pl_c, q,
+                                f, supply.constants(p, sample_rate), BLOCK, s, mse, curvature)
     return s, without_noise(mse, spool, pl, p, fault, s, leak, pl_noise), curvature

@@ -5,7 +5,7 @@ supply line from the command side, (Vs/βe)·dPs/dt = Dp·ωp − C·Ps − Kr·
 QL = g·√(Ps ∓ P̂L), and compares QL − Cvx·P̂L with the flow sensor over blocks of ``block``
 samples (trapezoidal means, L/min). :mod:`hydrowatch.condition.parity` explains the model; this
 module holds the loops, fused so that a severity search touches each sample once per trial and
-allocates nothing per trial.
+allocates nothing per trial; the search itself is :mod:`hydrowatch.condition.severity_search`.
 
 A valve-side hypothesis (code: 0 pump_leak, 1 relief_spring, 2 valve_coil, 3 valve_leak, −1
 nominal) with severity s sets, for a window whose oil has leakage factor f:
@@ -16,7 +16,8 @@ nominal) with severity s sets, for a window whose oil has leakage factor f:
 - Cvx = (Cvx + [s·Cref if valve_leak])·f, cross-port leakage, m³/(s·Pa).
 
 ``valve_leak`` leaves the supply line alone (it only draws QL − Cvx·P̂L), so its residual is
-linear in s and its fit is exact least squares on one integration (:func:`fit_windows`).
+linear in s and its fit is exact least squares on one integration
+(:func:`hydrowatch.condition.severity_search.fit_windows`).
 
 The kernels are compiled with NumPy's error model (no zero-division check per division in the
 inner loops, ~6 % faster; every divisor is a positive conductance, a block count or guarded by
@@ -101,7 +102,7 @@ def track_supply(gain: np.ndarray, pl: np.ndarray, leakage: np.ndarray, pc: np.n
 
 
 @njit(cache=True, error_model="numpy")
-def _sweep(code: int, sev: np.ndarray, g: np.ndarray, pl: np.ndarray, q: np.ndarray, f: float, base: np.ndarray,
+def sweep(code: int, sev: np.ndarray, g: np.ndarray, pl: np.ndarray, q: np.ndarray, f: float, base: np.ndarray,
            block: int, r: np.ndarray, sse: np.ndarray) -> None:
     """Block-mean residuals (measured − predicted flow), L/min, of one window under hypothesis ``code`` at J severities.
 
@@ -157,111 +158,9 @@ def residual_mse(code: int, severity: np.ndarray, g: np.ndarray, pl: np.ndarray,
     sse = np.empty(1)
     out = np.empty(m)
     for i in range(m):
-        _sweep(code, severity[i:i + 1], g[i], pl[i], q[i], f[i], base, block, r, sse)
+        sweep(code, severity[i:i + 1], g[i], pl[i], q[i], f[i], base, block, r, sse)
         out[i] = sse[0] / nb
     return out
-
-
-@njit(cache=True, error_model="numpy")
-def fit_windows(code: int, lo: float, hi: float, grid: int, iterations: int, g: np.ndarray, pl: np.ndarray,
-                q: np.ndarray, f: np.ndarray, base: np.ndarray, block: int, s_out: np.ndarray,
-                mse_out: np.ndarray, curvature_out: np.ndarray) -> None:
-    """Severity of one valve-side hypothesis per window, clipped to [lo, hi], its mean squared residual and curvature.
-
-    ``curvature_out`` receives the Gauss-Newton curvature Σ (∂r/∂s)² / nb, (L/min)², so that near
-    the fit MSE(s) ≈ MSE(ŝ) + curvature·(s − ŝ)² (what pooling windows with one severity costs, and
-    what holding a window's severity in a state's box costs). For nonlinear hypotheses it is at
-    most the secant (MSE(ŝ ± h) − MSE(ŝ))/h² of either side, h one step of the local grid: where
-    the relief opens or closes the cost is a hockey stick, nearly flat on the side where the relief
-    is open (the supply pressure, hence the valve flow, barely moves with a leak) and steep on the
-    other, and the fit stops at the bend, where the local derivative reads the steep side. Extrapolated
-    across the flat side it called a consistent pump leak inconsistent (development population,
-    seed 7, unit 5, pump_leak_warning on cold oil: in low holds of the duty cycle the MSE varies by
-    under 2× over severities 0.3–0.85 and the fits stop at 0.80–0.89 against 0.53–0.60 in other
-    windows, one with the weight (curvature over MSE) 1373 of a well-determined window; the pooled
-    open set read 25 of its 40 windows ``unknown``).
-
-    Nonlinear hypotheses: a coarse grid of ``grid`` points over [lo, hi], a local grid around its
-    best point (the cost has kinks where the relief opens or closes), then up to ``iterations``
-    damped Gauss-Newton steps with a forward-difference derivative, stopping at the first step
-    that does not lower the cost (the next one would be the same step) or is below 10⁻⁶ of the
-    range (converged). ``valve_leak``: exact
-    least squares on its linear residual, clipped.
-    """
-    m, n = g.shape
-    nb = (n - 1) // block
-    r = np.empty((grid, nb))
-    sse = np.empty(grid)
-    best = np.empty(nb)
-    span0 = (hi - lo) / (grid - 1)
-    delta = 1e-4 * (hi - lo)
-    coarse = np.empty(grid)
-    for j in range(grid):
-        coarse[j] = lo + span0 * j if j < grid - 1 else hi
-    local = np.empty(grid - 2)
-    step = 2.0 * span0 / (grid - 1)  # the local grid's step
-    pair = np.empty(2)
-    for i in range(m):
-        gi, pli, qi, fi = g[i], pl[i], q[i], f[i]
-        if code == LINEAR:
-            pair[0], pair[1] = 0.0, 1.0
-            _sweep(code, pair, gi, pli, qi, fi, base, block, r, sse)
-            num, den = 0.0, 0.0
-            for b in range(nb):
-                slope = r[1, b] - r[0, b]
-                num += slope * r[0, b]
-                den += slope * slope
-            s = min(max(-num / max(den, 1e-300), lo), hi)
-            curvature_out[i] = den / nb
-            pair[0] = s
-            _sweep(code, pair[:1], gi, pli, qi, fi, base, block, r, sse)
-            s_out[i] = s
-            mse_out[i] = sse[0] / nb
-            continue
-        _sweep(code, coarse, gi, pli, qi, fi, base, block, r, sse)
-        top = int(np.argmin(sse[:grid]))
-        s, cost = coarse[top], sse[top]
-        best[:] = r[top]
-        for j in range(grid - 2):
-            local[j] = min(max(s - span0 + 2.0 * span0 * (j + 1) / (grid - 1), lo), hi)
-        _sweep(code, local, gi, pli, qi, fi, base, block, r, sse)
-        top = int(np.argmin(sse[:grid - 2]))
-        if sse[top] < cost:
-            s, cost = local[top], sse[top]
-            best[:] = r[top]
-        span = span0 / (grid - 1)
-        pair[0] = s + delta  # the derivative point
-        _sweep(code, pair[:1], gi, pli, qi, fi, base, block, r, sse)
-        for _ in range(iterations):
-            num, den = 0.0, 0.0
-            for b in range(nb):
-                jac = (r[0, b] - best[b]) / delta
-                num += jac * best[b]
-                den += jac * jac
-            t = min(max(s + min(max(-num / max(den, 1e-300), -span), span), lo), hi)
-            if abs(t - s) < 0.01 * delta:  # converged: a step this small cannot change the cost measurably
-                break
-            pair[0], pair[1] = t, t + delta  # the trial, and its derivative point for the next step
-            _sweep(code, pair, gi, pli, qi, fi, base, block, r[1:], sse[1:])
-            if not sse[1] < cost:
-                break
-            s, cost = t, sse[1]
-            best[:] = r[1]
-            r[0] = r[2]
-        num = 0.0  # r[0] holds the residual at s + delta here (set before the loop and on every accepted step)
-        for b in range(nb):
-            jac = (r[0, b] - best[b]) / delta
-            num += jac * jac
-        # Secants one local grid step either side (docstring: the cost's kinks).
-        pair[0], pair[1] = max(s - step, lo), min(s + step, hi)
-        _sweep(code, pair, gi, pli, qi, fi, base, block, r, sse)
-        for side in range(2):
-            h = pair[side] - s
-            if abs(h) > 0.5 * step:
-                num = min(num, max(sse[side] - cost, 0.0) / (h * h))
-        s_out[i] = s
-        mse_out[i] = cost / nb
-        curvature_out[i] = num / nb
 
 
 @njit(cache=True, error_model="numpy")
