@@ -31,6 +31,12 @@ def _lowest(sse: np.ndarray, points: np.ndarray, k: int) -> int:
     return best
 
 
+SECANT_DIVISIONS = 18.0
+"""The curvature's secants step (hi − lo) / SECANT_DIVISIONS either side of the fit: the local step of the default
+7-point grid, whatever the grid. With the refit's 19-point grid's own step (0.009 for a relief) the flat side of a
+hockey stick read as a curvature 80× that of the same fit found by the first search, and on a tuning relief path
+(seed 2054 unit 7) those windows outweighed the pool: false wear 0 → 8.6 % (docs/degradation.md)."""
+
 FLAT_BATCHES = 3
 """Batches of ``grid`` points searched past each end of a flat stretch (:func:`fit_windows`, :func:`_past_flat`)."""
 
@@ -115,8 +121,7 @@ def fit_windows(code: int, lo: float, hi: float, grid: int, iterations: int, fla
     local = np.empty(grid - 2)
     coarse_sse, local_sse, fine, trial = np.empty(grid), np.empty(grid - 2), np.empty(grid), np.empty(nb)
     points, costs = np.empty(2 * grid - 2), np.empty(2 * grid - 2)
-    step = (hi - lo) / 18.0  # the secants' step: the default 7-point grid's local step, whatever ``grid`` is (a
-    # finer step reads a hockey stick's flat side as a steeper curvature: a refit window weighed 80× more)
+    step = (hi - lo) / SECANT_DIVISIONS  # the secants' step, whatever ``grid`` is
     pair = np.empty(2)
     for i in range(m):
         gi, pli, qi, fi = g[i], pl[i], q[i], f[i]
@@ -183,7 +188,7 @@ def fit_windows(code: int, lo: float, hi: float, grid: int, iterations: int, fla
         for b in range(nb):
             jac = (r[0, b] - best[b]) / delta
             num += jac * jac
-        # Secants one local grid step either side (docstring: the cost's kinks).
+        # Secants one step either side (docstring: the cost's kinks).
         pair[0], pair[1] = max(s - step, lo), min(s + step, hi)
         sweep(code, pair, gi, pli, qi, fi, base, block, r, sse)
         for side in range(2):
