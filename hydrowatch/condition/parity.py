@@ -389,11 +389,8 @@ def valve_fit(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParam
               sample_rate: float = SAMPLE_RATE_HZ, pl_noise: np.ndarray | None = None,
               flat_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`valve_relation`'s severity, mean squared residual, (L/min)², and curvature d(MSE)/d(s²), each (m,);
-    with ``pl_noise`` the MSE at the fitted severity less what P̂L's measured noise adds (:func:`without_noise`).
-    ``flat_search`` False leaves out the search past a flat stretch's ends
-    (:func:`~hydrowatch.condition.severity_search.fit_windows`): a fit left on a stretch then has curvature 0, and
-    :func:`~hydrowatch.condition.estimates.parity_estimates` searches again only those that explain the window worse
-    than another hypothesis."""
+    with ``pl_noise`` less P̂L's noise share (:func:`without_noise`); ``flat_search`` False leaves a fit on a flat
+    stretch (curvature 0) for :func:`~hydrowatch.condition.estimates.parity_estimates` to search again if poor."""
     if grid < 3 or iterations < 0:
         raise ParameterError(f"grid must be >= 3 and iterations >= 0. Got {grid}, {iterations}; defaults 7, 4.")
     lo, hi = SEVERITY_LIMITS[fault]

@@ -155,9 +155,11 @@ def fit_windows(code: int, lo: float, hi: float, grid: int, iterations: int, fla
             best[:] = r[top]
         # A flat stretch (equal costs: a relief shut throughout the window at every severity there) can end in a
         # valley narrower than the local step, within a coarse step past either end of the stretch.
-        points[:grid], points[grid:] = coarse, local
-        costs[:grid], costs[grid:] = coarse_sse, local_sse
-        left, right = _flat_ends(points, costs, cost) if flat_search else (np.nan, np.nan)
+        left, right = np.nan, np.nan
+        if flat_search:
+            points[:grid], points[grid:] = coarse, local
+            costs[:grid], costs[grid:] = coarse_sse, local_sse
+            left, right = _flat_ends(points, costs, cost)
         if not np.isnan(left):
             for end, width in ((right, min(span0, hi - right)), (left, max(-span0, lo - left))):
                 if abs(width) > 0.0:
