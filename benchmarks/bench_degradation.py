@@ -61,8 +61,14 @@ def _windows(out: dict[str, np.ndarray], i: int) -> np.ndarray:
     return np.stack([out[c][i, :n].reshape(-1, W) for c in CHANNELS], axis=-1)
 
 
+COMMISSIONING = {"noise": (0.0, 4.0), "noise5": (0.0, 5.0)}
+"""Filtered-noise commissioning recordings by name, V: 0–4 V (the identification run of ``hydrowatch simulate``), or
+up to full stroke (u_max = 5 V), where more units' pumps reach their limit (docs/degradation.md, "Limits")."""
+
+
 def _commission(unit, seed: int, command: str) -> ConditionFeatures:
-    u = duty_cycle(300.0, VOLTS, seed=seed) if command == "duty" else filtered_noise(300.0, (0.0, 4.0), seed=seed)
+    u = (duty_cycle(300.0, VOLTS, seed=seed) if command == "duty"
+         else filtered_noise(300.0, COMMISSIONING[command], seed=seed))
     sim = PlantSimulator([unit], None, seed=seed)
     sim.settle(float(u[0]))
     out = sim.step(u[None, :])
@@ -166,9 +172,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--hours", type=float, default=2.0)
     parser.add_argument("--json", default=None)
-    parser.add_argument("--commission", choices=("noise", "duty"), default="noise",
-                        help="commissioning recording: 300 s filtered noise 0-4 V (an identification run, default) "
-                             "or 300 s of the working duty cycle")
+    parser.add_argument("--commission", choices=(*COMMISSIONING, "duty"), default="noise",
+                        help="commissioning recording: 300 s filtered noise 0-4 V (an identification run, default), "
+                             "0-5 V (noise5: to full stroke), or 300 s of the working duty cycle")
     parser.add_argument("--only", type=int, default=None, help="run only unit K of the population (diagnosis)")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)

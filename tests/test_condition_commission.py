@@ -19,7 +19,7 @@ from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.condition.unit import identify_unit
-from hydrowatch.condition.unit_checks import drawn_flow, valve_error
+from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, drawn_flow, pump_at_limit_share, valve_error
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant import PlantSimulator
@@ -295,6 +295,10 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert ("does not determine the relief" in said) == C.relief_open(info["unit"]["supply"],
                                                                        info["unit"]["split_disagreement"]), said
     assert info["unit"]["relief_spread"] == C.RELIEF_SPREAD  # every commissioned unit's load states follow the relief
+    at_limit = info["unit"]["pump_at_limit_share"]  # the duty cycle's share of samples at the pump's limit
+    assert 0.0 <= at_limit <= 1.0
+    assert ("does not determine its capacity" in said) == (at_limit < PUMP_LIMIT_SHARE
+                                                           and "Dp" not in info["unit"]["left_to_prior"]), said
     test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
                                  command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")
@@ -509,3 +513,16 @@ def test_near_standstill_the_load_relation_of_a_unit_whose_brake_was_left_to_its
     judged = copy.copy(moved)
     judged.brake_open_ = False
     assert np.max(judged.transform_evidence(slow)[:, :n][:, load]) > 1.5  # the misfit the flag sets aside
+
+
+def test_a_pump_that_outdelivers_the_valve_is_never_at_its_limit_and_commissioning_says_so(units) -> None:
+    """pump_at_limit_share: 0 for a pump 1.6 x the unit's on filtered noise 0-4 V (its capacity is not determined),
+    a clear share for one 0.7 x (the limit reached above ~3 V); commissioning reports the share."""
+    unit, _ = units[1]
+    u = filtered_noise(60, (0, 4), seed=5)
+    shares = {}
+    for factor in (1.6, 0.7):
+        pump = unit.replace(Dp=factor * unit.Dp)
+        w = windows(("healthy",), pump, u, 5)["healthy"]
+        shares[factor] = pump_at_limit_share(w, pump)
+    assert shares[1.6] < PUMP_LIMIT_SHARE < 0.05 < shares[0.7], shares

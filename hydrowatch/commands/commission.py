@@ -32,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
     from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
+    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files
     from hydrowatch.training.commissioning import commission_bundle
@@ -70,6 +71,11 @@ def run(args: argparse.Namespace) -> int:
                   "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "
                   "tell them apart, commission on 5 minutes of filtered noise over the command range (the "
                   "identification command of `hydrowatch simulate`)")
+        at_limit = unit.get("pump_at_limit_share")
+        if at_limit is not None and at_limit < PUMP_LIMIT_SHARE and "Dp" not in unit["left_to_prior"]:
+            print(f"  the pump was at its limit in {100 * at_limit:.1f} % of the samples: the recording does not "
+                  "determine its capacity (it trades with the relief's setting), so pump_leak levels and indices "
+                  "rest on the identified capacity; to measure it, add a few seconds of steps to full stroke")
         if unit["supply"] == "identified" and unit.get("left_to_prior"):
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")

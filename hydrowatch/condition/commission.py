@@ -61,7 +61,7 @@ from hydrowatch.condition.unit import (
     UnitFit,
     identify_unit,
 )
-from hydrowatch.condition.unit_checks import drawn_flow, valve_error
+from hydrowatch.condition.unit_checks import drawn_flow, pump_at_limit_share, valve_error
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
@@ -148,6 +148,9 @@ class Commissioning:
     relief_spread : float
         Log-scale half-width within which the load states follow each window's relief (:data:`RELIEF_SPREAD`;
         0 in commissionings before 2026-11-27 whose halves agreed).
+    pump_at_limit : float or None
+        Share of the valid samples with the unit's pump at its limit (:func:`~hydrowatch.condition.unit_checks.
+        pump_at_limit_share`: under its threshold the capacity is not determined); None before 2026-12-02.
     """
 
     model: ConditionModel
@@ -158,6 +161,7 @@ class Commissioning:
     split: float = 0.0
     held_out: float | None = None
     relief_spread: float = 0.0
+    pump_at_limit: float | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-able summary (the bundle manifest's ``commissioned.unit``)."""
@@ -165,7 +169,8 @@ class Commissioning:
                 "supply": self.supply, "split_disagreement": round(self.split, 4),
                 "held_out_ratio": None if self.held_out is None else round(self.held_out, 3),
                 "relief_spread": round(self.relief_spread, 3),
-                "left_to_prior": left_to_prior(self.unit)}
+                "left_to_prior": left_to_prior(self.unit),
+                "pump_at_limit_share": None if self.pump_at_limit is None else round(self.pump_at_limit, 4)}
 
 
 class SupplyChoice(NamedTuple):
@@ -374,8 +379,10 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
                                  f"present, or the recording is not of this kind of unit.{hint}")
     event(_log, "unit commissioned", logging.INFO, seconds=round(seconds), healthy=round(healthy, 3), supply=supply,
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
+    at_limit = (pump_at_limit_share(valid, unit.parameters, features.sensors, features.viscosity_coefficient)
+                if {"flow", "speed", "torque"} <= set(features.sensors) else None)
     return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out,
-                         moved.features_.relief_spread_)
+                         moved.features_.relief_spread_, at_limit)
 
 
 def _moved(model: ConditionModel, unit: UnitFit, windows: np.ndarray, supply: str,

@@ -1,7 +1,8 @@
 """What a unit's healthy recording tells beside its fit (:mod:`hydrowatch.condition.unit`): how well a fit explains
-windows it was not fitted to (:func:`valve_error`) and the most flow the recording drew from the pump
+windows it was not fitted to (:func:`valve_error`), the most flow the recording drew from the pump
 (:func:`drawn_flow`), both for commissioning's choices
-(:func:`hydrowatch.condition.commission.identify_for_commissioning`).
+(:func:`hydrowatch.condition.commission.identify_for_commissioning`), and whether it ever drove the pump to its limit
+(:func:`pump_at_limit_share`, what commissioning reports).
 Split from ``unit.py`` (one module, one job).
 """
 
@@ -12,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hydrowatch.condition import parity
-from hydrowatch.condition.unit import _valid_signals, _valve_relation
+from hydrowatch.condition.unit import _Signals, _valid_signals, _valve_relation
 from hydrowatch.errors import DataError
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
@@ -41,6 +42,16 @@ DRAWN_QUANTILE = 0.995
 robust to the sensor noise on one block, which the maximum is not."""
 
 
+def _supply(s: _Signals, p: PlantParameters) -> tuple[np.ndarray, np.ndarray]:
+    """Supply pressure Ps [Pa] integrated at ``p`` (:func:`parity.supply_and_valve_flow`) over the signals' windows,
+    and the total supply-side leakage per window, m³/(s·Pa)."""
+    pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
+    leakage = (p.Cp + p.Cpl + p.Cvl) * s.leak.reshape(-1)
+    ps, _ = parity.supply_and_valve_flow(p.Kq * parity.spool_position(s.voltage, p), pl, p, leakage,
+                                         np.full(s.flow.shape[0], p.Pc))
+    return ps, leakage
+
+
 def drawn_flow(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
                viscosity_coefficient: float = 0.04) -> float:
     """The most flow the recording drew from the pump, m³/s: the :data:`DRAWN_QUANTILE` of block means of
@@ -51,8 +62,30 @@ def drawn_flow(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] =
     a lower bound on the pump's capacity (:func:`hydrowatch.condition.commission.identify_for_commissioning`).
     """
     s = _valid_signals(windows, sensors, viscosity_coefficient, "the pump's draw")
-    pl = parity.load_pressure(s.speed, s.torque, p, leak=s.leak)
-    leakage = (p.Cp + p.Cpl + p.Cvl) * s.leak.reshape(-1)
-    ps, _ = parity.supply_and_valve_flow(p.Kq * parity.spool_position(s.voltage, p), pl, p, leakage,
-                                         np.full(s.flow.shape[0], p.Pc))
+    ps, leakage = _supply(s, p)
     return float(np.quantile(parity.block_means(np.abs(s.flow) + leakage[:, None] * ps), DRAWN_QUANTILE))
+
+
+PUMP_LIMIT_SHARE = 0.0005
+"""Smallest share of a recording's samples at the pump's limit (:func:`pump_at_limit_share`, at the identified
+parameters) for which the recording counts as having determined the pump's capacity Dp·ωp. Measured on 24 units
+(seeds 2054, 2055 and 2072 of ``benchmarks/bench_degradation.py``, 300 s of filtered noise 0–4 V each): every share
+from 0.001 to 0.57 left the identified capacity within 0.2–6.5 % of the unit's; the eight units at 0 (pumps that
+outdeliver the valve: on two of them 30 s of steps to full stroke did not reach the limit either) were identified at
+0.75–1.14 ×."""
+
+
+def pump_at_limit_share(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
+                        viscosity_coefficient: float = 0.04) -> float:
+    """Share of the valid samples at which the pump of a unit with parameters ``p`` delivers all it can: the supply
+    pressure integrated at ``p`` (:func:`parity.supply_and_valve_flow`) below the relief's cracking pressure.
+
+    Where the relief is open, Ps ≈ Pc + (Dp·ωp − QL)/Kr: the capacity trades with Pc and Kr, and the valve relation
+    does not determine it, although its Gauss-Newton posterior may look narrow (seed 2055, units 0 and 5, 300 s of
+    filtered noise 0–4 V: posterior sd of ln Dp 0.044–0.058, identified capacity 0.75–0.78 × the unit's, 0 of the
+    samples at the limit under either). Below :data:`PUMP_LIMIT_SHARE` the capacity is not determined by the
+    recording (:func:`~hydrowatch.condition.commission.commission` reports it).
+    """
+    s = _valid_signals(windows, sensors, viscosity_coefficient, "the pump's limit")
+    ps, _ = _supply(s, p)
+    return float(np.mean(ps < p.Pc))
