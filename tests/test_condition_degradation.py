@@ -18,8 +18,9 @@ from hydrowatch.condition.degradation import (
     severity_standard_error,
     window_degradation,
 )
-from hydrowatch.condition.estimates import ParityEstimates
+from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, moving_load_fit
 from hydrowatch.condition.parity import VALVE_HYPOTHESES
+from hydrowatch.condition.parity import load_relation as parity_load_relation
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.faults import (
@@ -234,3 +235,29 @@ def test_a_worn_valve_side_part_the_pool_cannot_tell_from_a_look_alike_has_no_in
     want = float(degradation_index("relief_spring", 0.1, nominal))
     assert np.isnan(d.value["relief_spring"][:4]).all() and d.value["relief_spring"][4:] == pytest.approx(
         np.full(n - 4, want))
+
+
+def test_the_loads_index_does_not_depend_on_the_brakes_shape_near_standstill():
+    # a 5 s window that creeps at 0.25 rad/s for over a second (a worn machine stalling in a low hold): a healthy brake
+    # with ωs 0.2, read on a unit whose ωs was identified 25 % high; the plain load fit reads the brake heavier,
+    # the fit away from standstill does not; a window that never leaves standstill has no load index
+    truth = PlantParameters()
+    p = truth.replace(omega_s=1.25 * truth.omega_s)
+    t = np.arange(1000) / 200.0
+    speed = np.clip(8.0 * np.sin(2 * np.pi * t / 5.0) + 1.5, 0.25, None)[None, :]  # creeping 28 % of the window
+    torque = truth.TL * np.tanh(speed / truth.omega_s) + truth.BL * speed + truth.JL * np.gradient(speed, axis=1) * 200
+    plain, _, _ = parity_load_relation(speed, torque, p)
+    moving, mse, curvature = moving_load_fit(speed, torque, p)
+    assert plain[0] > 0.02 and abs(moving[0]) < min(0.005, 0.1 * plain[0]), (plain, moving)  # measured 0.038, 7e-6
+    still = np.full((1, 1000), 0.05)
+    s2, m2, c2 = moving_load_fit(still, truth.TL * np.tanh(still / truth.omega_s), p)
+    assert np.isnan(s2[0]) and np.isnan(m2[0]) and c2[0] == 0.0
+    severity = {f: np.zeros(2) for f in FAULTS}
+    severity["load"] = np.array([plain[0], 0.3])
+    severity[MOVING_LOAD] = np.array([moving[0], np.nan])
+    fits = ParityEstimates(severity, {"load": np.full(2, 1e-4), MOVING_LOAD: np.array([mse[0], np.nan]),
+                                      "motor": np.full(2, 1e-4), **{f: np.full(2, 1e-4) for f in VALVE_HYPOTHESES}},
+                           {**{f: np.full(2, 5.0) for f in FAULTS}, MOVING_LOAD: np.array([curvature[0], 0.0])})
+    d = window_degradation(fits, np.ones(2, dtype=bool), truth, 124, ("load", "motor", "valve"),
+                           blamed=np.full(2, VALVE_HYPOTHESES.index("pump_leak")))
+    assert abs(d.value["load"][0]) < 0.01 and np.isnan(d.value["load"][1]), d.value["load"]

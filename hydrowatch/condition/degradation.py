@@ -52,7 +52,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
-from hydrowatch.condition.estimates import ParityEstimates, severity_standard_error
+from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
 from hydrowatch.condition.ring import Ring
@@ -116,15 +116,17 @@ def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantPa
     Returns
     -------
     ndarray, shape of ``severity``
-        Index, dimensionless (NaN where the severity is NaN).
+        Index, dimensionless (NaN where the severity is NaN, and at ±inf beyond a flat end of the table: an
+        undetermined fit's interval bound, which :func:`widened` caps).
     """
     drop, sev = speed_drop_table(fault, TABLE_DROP, nominal)
     s = np.asarray(severity, dtype=np.float64)
     value = np.interp(s, sev, drop)
     low_slope = (drop[1] - drop[0]) / (sev[1] - sev[0])
     high_slope = (drop[-1] - drop[-2]) / (sev[-1] - sev[-2])
-    value = np.where(s < sev[0], drop[0] + low_slope * (s - sev[0]), value)
-    value = np.where(s > sev[-1], drop[-1] + high_slope * (s - sev[-1]), value)
+    with np.errstate(invalid="ignore"):  # ±inf (an undetermined fit's interval bound) on a flat end: NaN, no bound
+        value = np.where(s < sev[0], drop[0] + low_slope * (s - sev[0]), value)
+        value = np.where(s > sev[-1], drop[-1] + high_slope * (s - sev[-1]), value)
     return np.asarray(value / ALERT_DROP)
 
 
@@ -268,7 +270,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
     measured = {f: np.zeros(n, dtype=bool) for f in FAULTS}
-    mse = {f: estimates.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
+    own = _load_away_from_standstill(estimates)
+    mse = {f: own.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
     if blamed is None:
         severity, misfit, curvature = ({f: _spread(a[f], valid) for f in parity.VALVE_HYPOTHESES}
                                        for a in (estimates.severity, mse, estimates.curvature))
@@ -278,14 +281,14 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
                  else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
     untold = contender.sum(axis=1) > 1
     if brake is None:
-        brake = (brake_factors(estimates.severity["load"], pool) if "load" in relations
+        brake = (brake_factors(own.severity["load"], pool) if "load" in relations
                  else np.ones(int(valid.sum())))
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
-        s = estimates.severity[fault]
-        se = severity_standard_error(mse[fault], estimates.curvature[fault], blocks)
-        determined = estimates.curvature[fault] * DETERMINED_STEP**2 >= mse[fault]
+        s = own.severity[fault]
+        se = severity_standard_error(mse[fault], own.curvature[fault], blocks)
+        determined = own.curvature[fault] * DETERMINED_STEP**2 >= mse[fault]
         v, lo, hi = _indices(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal,
                              np.ones_like(s) if fault == "load" else brake)
         lo, hi = widened(v, lo, hi)
@@ -302,6 +305,17 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
     return Degradation(value, low, high, measured)
+
+
+def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:
+    """``estimates`` with the load's fit replaced by its fit away from standstill
+    (:func:`~hydrowatch.condition.estimates.moving_load_fit`) where they carry it: the index does not depend on the
+    brake's low-speed shape, which commissioning gives to ±25 %. A window with no block away from standstill has no
+    load index (its curvature is 0: not determined)."""
+    if MOVING_LOAD not in estimates.severity:
+        return estimates
+    return ParityEstimates(*({**part, "load": part[MOVING_LOAD]}
+                             for part in (estimates.severity, estimates.mse, estimates.curvature)))
 
 
 def _indices(fault: str, severity: np.ndarray, nominal: PlantParameters, brake: np.ndarray) -> np.ndarray:
@@ -369,7 +383,7 @@ class DegradationStream:
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
         brake = np.ones(1)
         if "load" in f.relations_:
-            self._loads.add(float(severity["load"]))
+            self._loads.add(float(severity.get(MOVING_LOAD, severity["load"])))
             brake = np.array([brake_factor(self._loads.rows())])  # the ring holds the pool's last windows
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
