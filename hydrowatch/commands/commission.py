@@ -73,9 +73,10 @@ def run(args: argparse.Namespace) -> int:
                   "identification command of `hydrowatch simulate`)")
         at_limit = unit.get("pump_at_limit_share")
         if at_limit is not None and at_limit < PUMP_LIMIT_SHARE and "Dp" not in unit["left_to_prior"]:
-            print(f"  the pump was at its limit in {100 * at_limit:.1f} % of the samples: the recording does not "
-                  "determine its capacity (it trades with the relief's setting), so pump_leak levels and indices "
-                  "rest on the identified capacity; to measure it, add a few seconds of steps to full stroke")
+            print(f"  the pump was at its limit in {100 * at_limit:.2f} % of the samples: the recording does not "
+                  "determine its capacity (it trades with the relief's setting), and pump_leak levels and indices "
+                  "rest on the identified one; a few seconds of steps to full stroke show it if the valve can then "
+                  "draw more than the pump delivers (a pump that outdelivers the valve never shows it healthy)")
         if unit["supply"] == "identified" and unit.get("left_to_prior"):
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
