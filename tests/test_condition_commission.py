@@ -19,7 +19,13 @@ from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel
 from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.condition.unit import identify_unit
-from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, drawn_flow, pump_at_limit_share, valve_error
+from hydrowatch.condition.unit_checks import (
+    PUMP_LIMIT_SHARE,
+    RELIEF_SHUT_SHARE,
+    drawn_flow,
+    pump_at_limit_share,
+    valve_error,
+)
 from hydrowatch.errors import DataError, ParameterError
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant import PlantSimulator
@@ -299,6 +305,7 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert 0.0 <= at_limit <= 1.0
     assert ("does not determine its capacity" in said) == (at_limit < PUMP_LIMIT_SHARE
                                                            and "Dp" not in info["unit"]["left_to_prior"]), said
+    assert ("the relief shut" in said) == (at_limit >= RELIEF_SHUT_SHARE), said
     test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
                                  command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
     from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
-    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE
+    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, RELIEF_SHUT_SHARE
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files
     from hydrowatch.training.commissioning import commission_bundle
@@ -77,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
                   "determine its capacity (it trades with the relief's setting), and pump_leak levels and indices "
                   "rest on the identified one; a few seconds of steps to full stroke show it if the valve can then "
                   "draw more than the pump delivers (a pump that outdelivers the valve never shows it healthy)")
+        if at_limit is not None and at_limit >= RELIEF_SHUT_SHARE:
+            print(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
+                  "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve coil; "
+                  "commands that keep the valve's flow below the pump's (the relief open) would determine it")
         if unit["supply"] == "identified" and unit.get("left_to_prior"):
             kept = ", ".join(unit["left_to_prior"])
             print(f"  not informed by the recording, kept near the trained unit's values: {kept}")

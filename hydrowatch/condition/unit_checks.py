@@ -75,6 +75,14 @@ outdeliver the valve: on two of them 30 s of steps to full stroke did not reach 
 0.75–1.14 ×."""
 
 
+RELIEF_SHUT_SHARE = 0.5
+"""Share of a recording's samples at the pump's limit (:func:`pump_at_limit_share`: the relief shut) from which the
+recording barely sees the relief's gain Kr. Measured after the fresh runs of seeds 2055 and 2073 (16 units, 300 s of
+filtered noise 0–4 V): the three units at 0.52–0.78 had Kr identified at 0.61–0.76 × the unit's and read a worn relief
+spring as the coil in up to 20 % of its windows (docs/degradation.md, "Limits"); the units at 0–0.23 had Kr within
+0.81–1.15 × (one at 0.19 at 0.81 ×, 9.9 % of its relief path blamed on the coil: under this share, not flagged)."""
+
+
 def pump_at_limit_share(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
                         viscosity_coefficient: float = 0.04) -> float:
     """Share of the valid samples at which the pump of a unit with parameters ``p`` delivers all it can: the supply
