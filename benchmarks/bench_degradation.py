@@ -21,7 +21,9 @@ Per fault kind it prints:
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
   (``None`` forecasts count as wrong and not covered);
-- the healthy machine: the shortest ``alert_in_s`` any component forecasts after ``--hours`` (None: none).
+- the healthy machine: the shortest ``alert_in_s`` any component forecasts after ``--hours`` (None: none);
+- per unit, the commissioning recording's share of samples with the pump at its limit (0: the pump's capacity not
+  determined; from 0.5 the relief's gain barely seen: the two causes of most misses, docs/degradation.md "Limits").
 
 Run: ``python benchmarks/bench_degradation.py [--units 8] [--seed 2026] [--hours 2] [--json OUT]``. The population
 of ``--seed 7`` tuned the constants of hydrowatch/condition/degradation.py and forecast.py during development;
@@ -41,6 +43,7 @@ from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.degradation import window_degradation
 from hydrowatch.condition.forecast import forecast_alert
+from hydrowatch.condition.unit_checks import pump_at_limit_share
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
 from hydrowatch.plant.faults import FAULTS
@@ -66,14 +69,18 @@ COMMISSIONING = {"noise": (0.0, 4.0), "noise5": (0.0, 5.0)}
 up to full stroke (u_max = 5 V), where more units' pumps reach their limit (docs/degradation.md, "Limits")."""
 
 
-def _commission(unit, seed: int, command: str) -> ConditionFeatures:
+def _commission(unit, seed: int, command: str) -> tuple[ConditionFeatures, float]:
+    """The unit commissioned on 300 s of ``command``, and the share of that recording's samples with the pump at its
+    limit at the identified parameters (``pump_at_limit_share``: 0 = capacity not determined, ≥ 0.5 = relief gain
+    barely seen; docs/degradation.md, "Limits")."""
     u = (duty_cycle(300.0, VOLTS, seed=seed) if command == "duty"
          else filtered_noise(300.0, COMMISSIONING[command], seed=seed))
     sim = PlantSimulator([unit], None, seed=seed)
     sim.settle(float(u[0]))
     out = sim.step(u[None, :])
     out = {k: v if v.ndim == 2 else v[None, :] for k, v in out.items()}
-    return ConditionFeatures().fit({"healthy": _windows(out, 0)})
+    features = ConditionFeatures().fit({"healthy": _windows(out, 0)})
+    return features, pump_at_limit_share(_windows(out, 0), features.nominal_)
 
 
 def _estimates(features: ConditionFeatures, windows: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -105,7 +112,7 @@ def draw_unit(k: int, rng: np.random.Generator, hours: float) -> dict:
 
 def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
     """One unit: commission, then seven machines over ``hours``; per fault the path's figures, and the healthy one."""
-    features = _commission(draw["unit"], draw["commission_seed"], command)
+    features, at_limit = _commission(draw["unit"], draw["commission_seed"], command)
     shape, paths = draw["shape"], draw["paths"]
     specs = [MachineSpec(f, path=p) for f, p in paths.items()] + [MachineSpec("healthy")]
     fleet = Fleet(specs, nominal=draw["day"], seed=draw["fleet_seed"])
@@ -125,7 +132,7 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
             fits[i].append(est)
     t = np.concatenate(starts)
     blocks = (W - 1) // E.parity.BLOCK
-    result: dict = {"shape": shape, "paths": {}}
+    result: dict = {"shape": shape, "paths": {}, "pump_at_limit_share": round(at_limit, 4)}
     for i, spec in enumerate(specs):
         ok = np.concatenate(valid[i])
         d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_)
@@ -204,6 +211,8 @@ def main() -> None:
     print(f"healthy {args.hours:g} h: soonest forecast alert "
           f"{'none' if not finite else f'{min(finite) / 3600:.1f} h'} ({len(finite)} of {len(units)} units forecast "
           f"one); largest |index| {max(u['healthy_max_index'] for u in units):.3f}")
+    print("commissioning's share of samples with the pump at its limit, per unit: "
+          + " ".join(f"{u['pump_at_limit_share']:.3f}" for u in units))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"seed": args.seed, "units": units, "hours": args.hours}, fh, indent=1, default=str)
