@@ -196,8 +196,8 @@ def moving_load_fit(speed: np.ndarray, torque: np.ndarray, p: PlantParameters
     holds then read its brake 15–28 % heavier in those windows: the load's index up to 0.22 on a healthy load while a
     leak wore past its alert, 1.9–2.5 % of the path's windows (docs/degradation.md).
     """
-    y = parity.block_means(torque - p.BL * speed) - p.JL * parity.block_rates(speed)
-    phi = parity.block_means(np.tanh(speed / p.omega_s)) * p.TL
+    y, shape = parity.load_terms(speed, torque, p)
+    phi = shape * p.TL
     away = (parity.block_means((np.abs(speed) < STANDSTILL * p.omega_s).astype(np.float64)) == 0.0).astype(np.float64)
     blocks = away.sum(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -191,16 +191,19 @@ def _one_parameter_fit(y: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.n
     return theta, np.sqrt(np.mean(residual * residual, axis=1))
 
 
+def load_terms(speed: np.ndarray, torque: np.ndarray, p: PlantParameters,
+               sample_rate: float = SAMPLE_RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 7 over blocks of :data:`BLOCK` samples: T − JL·ω̇ − BL·ω, N·m, and the brake's shape tanh(ω/ωs), each
+    (m, blocks); the derivative integrates exactly to a difference, so the 28 Hz resonance leaves no error."""
+    return (block_means(torque - p.BL * speed) - p.JL * block_rates(speed, sample_rate=sample_rate),
+            block_means(np.tanh(speed / p.omega_s)))
+
+
 def load_relation(speed: np.ndarray, torque: np.ndarray, p: PlantParameters,
                   sample_rate: float = SAMPLE_RATE_HZ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Load severity s (TL·(1 + s)), the relation's RMS residual, N·m, and its regressor (Eq. 7).
-
-    T − JL·ω̇ − BL·ω = TL·(1 + s)·tanh(ω/ωs), integrated over blocks of :data:`BLOCK` samples
-    (the derivative then integrates exactly to a difference, so the 28 Hz resonance leaves no
-    differentiation error), least squares for TL·(1 + s) per window.
-    """
-    y = block_means(torque - p.BL * speed) - p.JL * block_rates(speed, sample_rate=sample_rate)
-    phi = block_means(np.tanh(speed / p.omega_s))
+    """Load severity s (TL·(1 + s)), the relation's RMS residual, N·m, and its regressor (Eq. 7): least squares of
+    :func:`load_terms`' T − JL·ω̇ − BL·ω = TL·(1 + s)·tanh(ω/ωs) per window."""
+    y, phi = load_terms(speed, torque, p, sample_rate)
     tl, rms = _one_parameter_fit(y, phi)
     return tl / p.TL - 1.0, rms, phi * p.TL
 

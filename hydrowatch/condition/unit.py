@@ -239,8 +239,8 @@ def _fit(names: Sequence[str], p: PlantParameters, relation: Relation, start: Pl
 
 def _load_residual(s: _Signals) -> Callable[[PlantParameters], np.ndarray]:
     def residual(p: PlantParameters) -> np.ndarray:
-        y = parity.block_means(s.torque - p.BL * s.speed) - p.JL * parity.block_rates(s.speed)
-        return y - p.TL * parity.block_means(np.tanh(s.speed / p.omega_s))
+        y, shape = parity.load_terms(s.speed, s.torque, p)
+        return y - p.TL * shape
     return residual
 
 
