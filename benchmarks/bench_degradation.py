@@ -135,7 +135,8 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
     result: dict = {"shape": shape, "paths": {}, "pump_at_limit_share": round(at_limit, 4)}
     for i, spec in enumerate(specs):
         ok = np.concatenate(valid[i])
-        d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_)
+        d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_,
+                               capacity_known=features.capacity_known_)
         if spec.machine == "healthy":
             forecasts = {f: forecast_alert(t, d.history(f)) for f in FAULTS}
             soonest = [f.alert_in_s for f in forecasts.values()]

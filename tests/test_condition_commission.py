@@ -306,6 +306,9 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert ("does not determine its capacity" in said) == (at_limit < PUMP_LIMIT_SHARE
                                                            and "Dp" not in info["unit"]["left_to_prior"]), said
     assert ("the relief shut" in said) == (at_limit >= RELIEF_SHUT_SHARE), said
+    # the saved unit knows whether its pump's capacity is determined (pump_leak's index waits for it where not)
+    saved = ModelBundle.load(tmp_path / "units" / "m7").condition.features_
+    assert saved.capacity_known_ == (at_limit >= PUMP_LIMIT_SHARE)
     test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
                                  command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")

@@ -198,7 +198,7 @@ def test_a_window_whose_fit_does_not_determine_the_part_has_no_index_for_it():
                            {f: curvature if f == "pump_leak" else np.full(3, 5.0) for f in FAULTS})
     nominal = PlantParameters()
     d = window_degradation(fits, np.ones(3, dtype=bool), nominal, 124, ("load", "motor", "valve"),
-                           blamed=np.full(3, VALVE_HYPOTHESES.index("pump_leak")))
+                           blamed=np.full(3, VALVE_HYPOTHESES.index("pump_leak")), capacity=np.zeros(3))
     want = float(degradation_index("pump_leak", 0.6, nominal))
     assert d.value["pump_leak"][0] == pytest.approx(want) and d.value["pump_leak"][2] == pytest.approx(want)
     assert np.isnan(d.value["pump_leak"][1]) and np.isnan(d.low["pump_leak"][1]) and np.isnan(d.history("pump_leak")[1])

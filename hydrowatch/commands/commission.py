@@ -74,9 +74,10 @@ def run(args: argparse.Namespace) -> int:
         at_limit = unit.get("pump_at_limit_share")
         if at_limit is not None and at_limit < PUMP_LIMIT_SHARE and "Dp" not in unit["left_to_prior"]:
             print(f"  the pump was at its limit in {100 * at_limit:.2f} % of the samples: the recording does not "
-                  "determine its capacity (it trades with the relief's setting), and pump_leak levels and indices "
-                  "rest on the identified one; a few seconds of steps to full stroke show it if the valve can then "
-                  "draw more than the pump delivers (a pump that outdelivers the valve never shows it healthy)")
+                  "determine its capacity (it trades with the relief's setting), and pump_leak levels rest on the "
+                  "identified one; pump_leak has no degradation index until a worn pump's windows at its limit "
+                  "determine it; a few seconds of steps to full stroke show it if the valve can then draw more than "
+                  "the pump delivers (a pump that outdelivers the valve never shows it healthy)")
         if at_limit is not None and at_limit >= RELIEF_SHUT_SHARE:
             print(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
                   "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve coil; "

@@ -61,7 +61,7 @@ from hydrowatch.condition.unit import (
     UnitFit,
     identify_unit,
 )
-from hydrowatch.condition.unit_checks import drawn_flow, pump_at_limit_share, valve_error
+from hydrowatch.condition.unit_checks import capacity_determined, drawn_flow, valve_error
 from hydrowatch.log import event, get_logger
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
@@ -379,8 +379,8 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
                                  f"present, or the recording is not of this kind of unit.{hint}")
     event(_log, "unit commissioned", logging.INFO, seconds=round(seconds), healthy=round(healthy, 3), supply=supply,
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
-    at_limit = (pump_at_limit_share(valid, unit.parameters, features.sensors, features.viscosity_coefficient)
-                if {"flow", "speed", "torque"} <= set(features.sensors) else None)
+    moved.features_.capacity_known_, at_limit = capacity_determined(valid, unit.parameters, features.sensors,
+                                                                    features.viscosity_coefficient)
     return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out,
                          moved.features_.relief_spread_, at_limit)
 

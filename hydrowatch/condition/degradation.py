@@ -36,6 +36,12 @@ runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell whi
 index (NaN) rather than a value on what may be the wrong part, or a 0 on what may be the worn one.
 load and motor_leak have their own relations and are always estimated.
 
+**The pump's capacity.** pump_leak is read on θ0 with the pump's capacity its own history gives
+(:mod:`hydrowatch.condition.capacity`): a pump that outdelivers the valve never reaches its limit in commissioning,
+which then leaves Dp·ωp anywhere along the relief's ridge; once a leak takes the pump to its limit, the pool's windows
+meeting it at different pressures separate the capacity from the leak. Until they have, a unit whose commissioning
+left the capacity undetermined has no pump_leak index (:class:`~hydrowatch.condition.capacity.MachineCapacity`).
+
 **Determined or not.** A window whose fit barely depends on a part's severity (a severity :data:`DETERMINED_STEP`
 off would not double its MSE) has no index for that part (NaN), whatever its interval says: the severity search
 stops anywhere in a flat valley (pump_leak where the pump is far from its limit).
@@ -48,10 +54,21 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from hydrowatch.condition import parity
+from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
+from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
+from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
+from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
+from hydrowatch.condition.capacity import (
+    PUMP_LIMIT,
+    MachineCapacity,
+    capacity_error,
+    capacity_errors,
+    corrected,
+    with_capacity,
+)
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
@@ -65,10 +82,6 @@ TABLE_DROP = 0.6
 """Largest speed drop tabulated (index 2); beyond it the table is extrapolated linearly."""
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile."""
-ATTRIBUTION_WINDOWS = 60
-"""Valid windows (300 s) whose valve-relation fits decide which valve-side part wears. Wear is slow against five
-minutes; the verdicts' 12-window pool left a third of a duty cycle's windows of a valve_leak or relief_spring unit
-blamed on a look-alike, 60 windows none on two of three tuning units (docs/degradation.md)."""
 SYSTEMATIC = (0.02, 0.03)
 """Standard deviation of the index's systematic error, absolute + relative to the index: the commissioned nominal
 parameters are themselves estimates and a later day drifts leakages, load and damping by ±3–5 % (on tuning units,
@@ -81,16 +94,6 @@ duty cycle only pump_leak has such windows (where the pump is far from its limit
 windows): their index was off by 0.15–0.32 on average (the severity search stops in a flat valley), against
 0.005–0.07 for the windows that determine it (seeds 7 and 2027); load, motor_leak, valve_leak, valve_coil and
 relief_spring fits passed the test ≥ 10 times over in every window looked at."""
-ATTRIBUTION_MARGIN = 3.0
-"""Pool misfit (nats, over the pool's windows) by which the blamed valve-side part must beat the runner-up for the
-pool to tell them apart. While a relief spring barely cracks (true index 0.1–0.25) it and the coil explain the duty
-cycle equally: the blame flipped between them with gaps of about 1 (pool of 60 windows), so a third to all of such
-windows of a worn relief spring blamed the coil (and of a worn coil, the relief), reading the right value on the
-wrong part. Where the worn part lost its pool on the tuning units (seeds 7 and 2042, 6 units) the gap's median /
-90th percentile was 0.5 / 1.5 on valve_coil paths, 0.4 / 1.3 on relief_spring, 0.2 / 0.8 on valve_leak and 0.8 /
-2.3 on pump_leak (early wear); past true index 0.3 the own part won by more than 3 in 97–100 % of the windows. A
-worn part blamed on a look-alike by more than the margin stays blamed (seed 2027, unit 4: a relief spring, 9 % of
-its windows)."""
 UNTOLD_LEVEL = 0.1
 """Index from which a valve-side part blamed without :data:`ATTRIBUTION_MARGIN` has no index (NaN, "which part
 wears is not told"); below it the blamed part keeps its value: which part wears does not matter to a plan there (a
@@ -142,67 +145,6 @@ def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.nd
         np.nan_to_num(hi, nan=INDEX_CAP), -INDEX_CAP, INDEX_CAP)
 
 
-def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) -> np.ndarray:
-    """Σ log MSE of one valve-side hypothesis over a pool of consecutive valid windows that share one severity trend.
-
-    Each window's free fit gives MSE(s) ≈ MSE_min + c·(s − ŝ)² (:class:`~hydrowatch.condition.estimates.
-    ParityEstimates`). A part wears slowly against the pool's 300 s, so the pool's windows should agree on one
-    severity (a straight line in the window's place x, weighted least squares of the ŝ with weights c / MSE_min);
-    the misfit is Σ log(MSE_min + c·(ŝ − trend)²). A look-alike hypothesis explains each window on its own, as well
-    as the worn part or better, but only with a severity that moves with the command (docs/degradation.md).
-
-    Parameters
-    ----------
-    severity, mse, curvature : ndarray, shape (..., L)
-        ŝ, MSE_min [(L/min)²] and c of L consecutive valid windows in time order (last axis).
-
-    Returns
-    -------
-    ndarray, shape (...,)
-    """
-    s, m, c = np.asarray(severity, dtype=np.float64), np.maximum(mse, 1e-300), np.maximum(curvature, 0.0)
-    x = np.arange(s.shape[-1], dtype=np.float64)
-    w = c / m + 1e-12  # a window that does not determine the part hardly moves the trend
-    total = w.sum(axis=-1, keepdims=True)
-    dx = x - (w * x).sum(axis=-1, keepdims=True) / total
-    level = (w * s).sum(axis=-1, keepdims=True) / total
-    sxx = (w * dx**2).sum(axis=-1, keepdims=True)
-    slope = (w * dx * (s - level)).sum(axis=-1, keepdims=True) / np.maximum(sxx, 1e-300)
-    return np.log(m + c * (s - level - slope * dx) ** 2).sum(axis=-1)
-
-
-def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
-                           curvature: Mapping[str, np.ndarray], valid: np.ndarray,
-                           pool: int = ATTRIBUTION_WINDOWS, with_excess: bool = False) -> Any:
-    """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
-
-    The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
-    it (one machine's consecutive windows; fewer at the start); −1 for invalid windows.
-
-    Parameters
-    ----------
-    severity, mse, curvature : mapping of fault to ndarray, shape (n,)
-        Each valve hypothesis's free fit per window: ŝ, minimum MSE [(L/min)²], c (NaN where invalid).
-    valid : ndarray of bool, shape (n,)
-    pool : int, default :data:`ATTRIBUTION_WINDOWS`
-    with_excess : bool, default False
-        Also return each hypothesis's pool misfit minus the best's, shape (n, 4) (0 for the blamed part, inf
-        where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` tests.
-    """
-    m = int(valid.sum())
-    misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
-    for j, fault in enumerate(parity.VALVE_HYPOTHESES):
-        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)]
-        for k in range(min(pool - 1, m)):  # the first windows: the pool so far
-            misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
-        if m >= pool:
-            misfit[pool - 1:, j] = pool_misfit(*(sliding_window_view(a, pool) for a in fit))
-    out, excess = np.full(valid.size, -1, dtype=np.int64), np.full((valid.size, misfit.shape[1]), np.inf)
-    out[valid] = np.argmin(misfit, axis=1)
-    excess[valid] = misfit - misfit.min(axis=1, keepdims=True)
-    return (out, excess) if with_excess else out
-
-
 @dataclass(frozen=True)
 class Degradation:
     """Index per fault and window with its 95 % interval: ``value``, ``low``, ``high``, each fault → (n,).
@@ -240,7 +182,8 @@ class Degradation:
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
                        relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
                        blamed: np.ndarray | None = None, excess: np.ndarray | None = None,
-                       brake: np.ndarray | None = None) -> Degradation:
+                       brake: np.ndarray | None = None, capacity: np.ndarray | None = None,
+                       capacity_known: bool = True) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -266,6 +209,13 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         Brake factor g of each valid window (:func:`~hydrowatch.condition.brake.brake_factors`; None: from the
         estimates' load severities over ``pool`` windows, 1 where the sensors do not test the load relation). Every
         part but the load is read on θ0 with TL·g (:mod:`hydrowatch.condition.brake`).
+    capacity : ndarray, shape (m,), optional
+        The machine's q̂ at each valid window: its pump's capacity over θ0's, minus 1, NaN while its history has
+        not determined it (:func:`~hydrowatch.condition.capacity.capacity_errors`, which None calls with ``pool``).
+        pump_leak is read on θ0 with that capacity, and has no index where it is NaN.
+    capacity_known : bool, default True
+        Whether θ0's capacity is determined (``ConditionFeatures.capacity_known_``): q̂ = 0 throughout; else (and
+        ``capacity`` None) from the history.
     """
     n = valid.size
     value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
@@ -283,14 +233,23 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if brake is None:
         brake = (brake_factors(own.severity["load"], pool) if "load" in relations
                  else np.ones(int(valid.sum())))
+    ratio = own.severity.get(PUMP_LIMIT, np.full(int(valid.sum()), np.nan))
+    if capacity is None:
+        capacity = (np.zeros(ratio.size) if capacity_known or "valve" not in relations
+                    else capacity_errors(own.severity["pump_leak"], ratio, _determines(own, "pump_leak"), pool))
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
         s = own.severity[fault]
         se = severity_standard_error(mse[fault], own.curvature[fault], blocks)
         determined = own.curvature[fault] * DETERMINED_STEP**2 >= mse[fault]
-        v, lo, hi = _indices(fault, np.stack([s, s - Z95 * se, s + Z95 * se]), nominal,
-                             np.ones_like(s) if fault == "load" else brake)
+        stack, q = np.stack([s, s - Z95 * se, s + Z95 * se]), np.zeros_like(s)
+        if fault == "pump_leak":  # on θ0 with the capacity the machine's history gives; none yet: not determined
+            q = np.asarray(capacity, dtype=np.float64)
+            determined &= np.isfinite(q)
+            q = np.nan_to_num(q)
+            stack = corrected(stack, ratio, q)
+        v, lo, hi = _indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
         lo, hi = widened(v, lo, hi)
         if fault in parity.VALVE_HYPOTHESES:
             j = parity.VALVE_HYPOTHESES.index(fault)
@@ -318,14 +277,21 @@ def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:
                              for part in (estimates.severity, estimates.mse, estimates.curvature)))
 
 
-def _indices(fault: str, severity: np.ndarray, nominal: PlantParameters, brake: np.ndarray) -> np.ndarray:
-    """:func:`degradation_index` of severities (k, m) whose column i is read on θ0 with TL × ``brake[i]``: one table
-    look-up per distinct brake factor."""
+def _indices(fault: str, severity: np.ndarray, nominal: PlantParameters, brake: np.ndarray,
+             capacity: np.ndarray) -> np.ndarray:
+    """:func:`degradation_index` of severities (k, m) whose column i is read on θ0 with TL × ``brake[i]`` and the
+    pump's capacity × (1 + ``capacity[i]``): one table look-up per distinct pair."""
     out = np.empty(severity.shape)
-    for g in np.unique(brake):
-        at = brake == g
-        out[:, at] = degradation_index(fault, severity[:, at], with_brake(nominal, float(g)))
+    pairs = np.stack([brake, capacity], axis=1)
+    for g, q in np.unique(pairs, axis=0):
+        at = (brake == g) & (capacity == q)
+        out[:, at] = degradation_index(fault, severity[:, at], with_brake(with_capacity(nominal, float(q)), float(g)))
     return out
+
+
+def _determines(estimates: ParityEstimates, fault: str) -> np.ndarray:
+    """Whether each window's fit determines ``fault`` (:data:`DETERMINED_STEP`), shape (m,)."""
+    return np.asarray(estimates.curvature[fault] * DETERMINED_STEP**2 >= estimates.mse[fault])
 
 
 def _spread(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -347,7 +313,8 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
         empty = {f: np.full(valid.size, np.nan) for f in FAULTS}
         return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
     blocks = (features.window - 1) // parity.BLOCK
-    return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool)
+    return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool,
+                              capacity_known=getattr(features, "capacity_known_", True))
 
 
 class DegradationStream:
@@ -368,6 +335,9 @@ class DegradationStream:
         self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
         """Each valid window's ŝ, MSE and c per valve hypothesis."""
         self._loads = Ring(pool)
+        self._limits = Ring(pool, (3,))
+        """Each valid window's pump_leak ŝ, Pc / P̄s and whether its fit determines pump_leak (1/0)."""
+        self._capacity = None if getattr(features, "capacity_known_", True) else MachineCapacity()
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
                curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
@@ -375,17 +345,22 @@ class DegradationStream:
         :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
         only (``measured``: :meth:`Degradation.window`)."""
         f = self.features
-        blamed, excess = np.array([-1]), None
+        blamed, excess, capacity = np.array([-1]), None, np.zeros(1)
         if "valve" in f.relations_:
             self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
             ring = np.moveaxis(self._fits.rows(), 0, -1)  # (hypothesis, ŝ / MSE / c, window)
             misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
+            if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
+                self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),
+                                  float(curvature["pump_leak"] * DETERMINED_STEP**2 >= mse["pump_leak"])])
+                rows = self._limits.rows()
+                capacity = np.array([self._capacity.add(capacity_error(rows[:, 0], rows[:, 1], rows[:, 2] > 0.5))])
         brake = np.ones(1)
         if "load" in f.relations_:
             self._loads.add(float(severity.get(MOVING_LOAD, severity["load"])))
             brake = np.array([brake_factor(self._loads.rows())])  # the ring holds the pool's last windows
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed, excess, brake)
+                                   f.relations_, self.pool, blamed, excess, brake, capacity)
         return found.window(0, measured=True)

@@ -20,6 +20,7 @@ import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
+from hydrowatch.condition.capacity import PUMP_LIMIT, limit_ratio
 from hydrowatch.condition.determinacy import STANDSTILL
 from hydrowatch.condition.held import window_noise
 from hydrowatch.condition.layout import CHANNELS, WIDTH
@@ -242,6 +243,7 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
         for fault in parity.VALVE_HYPOTHESES:
             severity[fault], mse[fault], curvature[fault] = _refit_poor_fits(sig, p, fault, severity[fault],
                                                                              mse[fault], curvature[fault], best)
+        severity[PUMP_LIMIT] = limit_ratio(sig.spool, sig.load_pressure, p, severity["pump_leak"], sig.leak)
     return ParityEstimates(severity, mse, curvature)
 
 

@@ -47,6 +47,7 @@ from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_oil_box, oi
 from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
 from hydrowatch.condition.standstill import without_load_relation
 from hydrowatch.condition.unit import UnitFit, identify_unit, left_to_prior
+from hydrowatch.condition.unit_checks import capacity_determined
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 from hydrowatch.health.windows import check_window, window_starts
 from hydrowatch.log import event, get_logger
@@ -113,6 +114,9 @@ class ConditionFeatures(EvidenceRows):
     relief_spread_ : float
         Log-scale half-width of the relief a commissioning recording left undetermined (0: determined, and
         for every trained model); the load states then follow each window's relief (:mod:`.relief`).
+    capacity_known_ : bool
+        Whether the pump's capacity Dp·ωp is determined (False: a commissioning recording never drove the pump to its
+        limit; pump_leak's index then waits for the machine's history, :mod:`hydrowatch.condition.capacity`).
     feature_names_ : list of str
     """
 
@@ -173,12 +177,14 @@ class ConditionFeatures(EvidenceRows):
         if "healthy" not in windows_by_state:
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.unit_: dict[str, Any] = {}
-        self.relief_spread_, self.brake_open_ = 0.0, False
+        self.relief_spread_, self.brake_open_, self.capacity_known_ = 0.0, False, True
         if self.identify:
             unit = identify_unit(L.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
                                  self.viscosity_coefficient)
             p, self.unit_ = unit.parameters, unit.summary()
             self.brake_open_ = "omega_s" in left_to_prior(unit)
+            self.capacity_known_ = capacity_determined(L.check_windows(windows_by_state["healthy"], self.window), p,
+                                                       self.sensors, self.viscosity_coefficient)[0]
         self.nominal_ = p
         # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
         # the faults that only show under load tie with healthy (ParityRule)

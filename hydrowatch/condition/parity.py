@@ -41,8 +41,11 @@ from typing import cast
 import numpy as np
 from numba import njit
 
+# the kernels' modules, not through the package (whose __init__ imports features, which imports this: a cycle,
+# tests/test_layers.py)
+import hydrowatch.condition.severity_search as severity_search
+import hydrowatch.condition.supply as supply
 from hydrowatch.channels import M3S_TO_LPM
-from hydrowatch.condition import severity_search, supply
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.effects import REFERENCE_TEMPERATURE_C
 from hydrowatch.plant.parameters import PlantParameters

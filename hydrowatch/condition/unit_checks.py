@@ -97,3 +97,15 @@ def pump_at_limit_share(windows: np.ndarray, p: PlantParameters, sensors: Sequen
     s = _valid_signals(windows, sensors, viscosity_coefficient, "the pump's limit")
     ps, _ = _supply(s, p)
     return float(np.mean(ps < p.Pc))
+
+
+def capacity_determined(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
+                        viscosity_coefficient: float = 0.04) -> tuple[bool, float | None]:
+    """Whether a healthy recording (valid windows) determined the pump's capacity of its identified parameters ``p``
+    (:func:`pump_at_limit_share` ≥ :data:`PUMP_LIMIT_SHARE`), and that share; (True, None) where the sensors cannot
+    tell (flow, speed and torque are needed). Where not, pump_leak's degradation index waits for the machine's history
+    (:mod:`hydrowatch.condition.capacity`)."""
+    if not {"flow", "speed", "torque"} <= set(sensors):
+        return True, None
+    share = pump_at_limit_share(windows, p, sensors, viscosity_coefficient)
+    return share >= PUMP_LIMIT_SHARE, share
