@@ -321,7 +321,9 @@ class DegradationStream:
     """One machine's degradation index online (river style): :meth:`update` with each valid window's free fits
     returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows: the
     valve-side part is the hypothesis with the smallest :func:`pool_misfit` over the last ``pool`` valid windows (a
-    ring of ``pool`` × 4 × 3 floats: each hypothesis's ŝ, MSE and c), the rest is the window's own.
+    ring of ``pool`` × 4 × 3 floats: each hypothesis's ŝ, MSE and c), the rest is the window's own; where the unit's
+    pump capacity is not known (``capacity_known_`` false), also a ring of ``pool`` × 3 floats (pump_leak's ŝ, Pc / P̄s,
+    determined) and the machine's :class:`~hydrowatch.condition.capacity.MachineCapacity` (101 counts).
 
     Parameters
     ----------
@@ -335,9 +337,10 @@ class DegradationStream:
         self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
         """Each valid window's ŝ, MSE and c per valve hypothesis."""
         self._loads = Ring(pool)
-        self._limits = Ring(pool, (3,))
+        known = getattr(features, "capacity_known_", True)
+        self._capacity = None if known else MachineCapacity()
+        self._limits = Ring(1 if known else pool, (3,))
         """Each valid window's pump_leak ŝ, Pc / P̄s and whether its fit determines pump_leak (1/0)."""
-        self._capacity = None if getattr(features, "capacity_known_", True) else MachineCapacity()
 
     def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
                curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
