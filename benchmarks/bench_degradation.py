@@ -79,8 +79,9 @@ def _commission(unit, seed: int, command: str) -> tuple[ConditionFeatures, float
     sim.settle(float(u[0]))
     out = sim.step(u[None, :])
     out = {k: v if v.ndim == 2 else v[None, :] for k, v in out.items()}
-    features = ConditionFeatures().fit({"healthy": _windows(out, 0)})
-    return features, pump_at_limit_share(_windows(out, 0), features.nominal_)
+    healthy = _windows(out, 0)
+    features = ConditionFeatures().fit({"healthy": healthy})
+    return features, pump_at_limit_share(healthy, features.nominal_)
 
 
 def _estimates(features: ConditionFeatures, windows: np.ndarray) -> tuple[np.ndarray, dict]:

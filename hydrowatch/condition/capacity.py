@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydrowatch.condition.parity import reference_conductance, supply_and_valve_flow
+from hydrowatch.condition.parity import supply_under
 from hydrowatch.plant.parameters import PlantParameters
 
 PUMP_LIMIT = "pump_limit"
@@ -59,11 +59,7 @@ def limit_ratio(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, severity:
     leak : float or ndarray, shape (m, 1)
         The oil's leakage factor per window.
     """
-    m = spool.shape[0]
-    s = np.maximum(np.asarray(severity, dtype=np.float64).reshape(m), -p.Cpl / reference_conductance(p))
-    factor = np.broadcast_to(np.asarray(leak, dtype=np.float64).reshape(-1), (m,))
-    leakage = (s * reference_conductance(p) + p.Cpl + p.Cp + p.Cvl) * factor
-    ps, _ = supply_and_valve_flow(p.Kq * spool, pl, p, leakage, np.full(m, p.Pc))
+    ps, _ = supply_under(spool, pl, p, "pump_leak", severity, leak)  # as the window's own fit integrated it
     limited = ps < p.Pc
     count = limited.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

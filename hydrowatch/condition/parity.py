@@ -41,8 +41,7 @@ from typing import cast
 import numpy as np
 from numba import njit
 
-# the kernels' modules, not through the package (whose __init__ imports features, which imports this: a cycle,
-# tests/test_layers.py)
+# the kernels' modules, not the package (its __init__ imports features, which imports this: tests/test_layers.py)
 import hydrowatch.condition.severity_search as severity_search
 import hydrowatch.condition.supply as supply
 from hydrowatch.channels import M3S_TO_LPM
@@ -282,6 +281,13 @@ def valve_flow_prediction(spool: np.ndarray, pl: np.ndarray, p: PlantParameters,
     leak : float or ndarray, shape (m, 1)
         Leakage factor of the oil per window: every laminar leakage (Cp, Cpl, Cvl, Cvx) is scaled by it.
     """
+    return supply_under(spool, pl, p, fault, severity, leak)[1]
+
+
+def supply_under(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None, severity: np.ndarray,
+                 leak: float | np.ndarray = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Supply pressure Ps [Pa] and :func:`valve_flow_prediction`'s flow [m³/s], each (m, n), under one valve-side
+    fault (same arguments)."""
     m = spool.shape[0]
     s = np.asarray(severity, dtype=np.float64).reshape(m)
     factor = np.broadcast_to(np.asarray(leak, dtype=np.float64).reshape(-1), (m,))
@@ -290,8 +296,8 @@ def valve_flow_prediction(spool: np.ndarray, pl: np.ndarray, p: PlantParameters,
     pc = p.Pc * (1.0 - s) if fault == "relief_spring" else np.full(m, p.Pc)
     kc = 1.0 - s if fault == "valve_coil" else np.ones(m)
     cvx = (s * c_ref + p.Cvx if fault == "valve_leak" else np.full(m, p.Cvx)) * factor
-    _, ql = supply_and_valve_flow(p.Kq * kc[:, None] * spool, pl, p, (cpl + p.Cp + p.Cvl) * factor, pc)
-    return ql - cvx[:, None] * pl
+    ps, ql = supply_and_valve_flow(p.Kq * kc[:, None] * spool, pl, p, (cpl + p.Cp + p.Cvl) * factor, pc)
+    return ps, ql - cvx[:, None] * pl
 
 
 def valve_residual(flow: np.ndarray, spool: np.ndarray, pl: np.ndarray, p: PlantParameters, fault: str | None,
