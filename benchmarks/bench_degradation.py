@@ -21,6 +21,8 @@ Per fault kind it prints:
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
   (``None`` forecasts count as wrong and not covered);
+- ``95% holds``: the share of a path's indexed windows whose 95 % interval holds the true index (median and worst
+  unit; the interval's honesty, docs/degradation.md "The 95 % interval");
 - the healthy machine: the shortest ``alert_in_s`` any component forecasts after ``--hours`` (None: none);
 - per unit, the commissioning recording's share of samples with the pump at its limit (0: the pump's capacity not
   determined; from 0.5 the relief's gain barely seen: the two causes of most misses, docs/degradation.md "Limits").
@@ -153,7 +155,8 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         others = np.nanmax(np.stack([d.value[f] for f in FAULTS if f != fault]), axis=0)  # false *wear*: signed
         row = {"duration_min": path.duration_s / 60.0, "mae": float(np.nanmean(np.abs(v - truth))),
                "indexed": float(np.mean(np.isfinite(v))),
-               "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15))}
+               "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15)),
+               "interval_covers": _interval_covers(d, fault, truth)}
         now = int(np.argmax(truth >= 0.5))
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
@@ -164,6 +167,21 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         row["covered"] = f.alert_in_s is not None and (lo or 0.0) <= remaining <= (hi if hi is not None else np.inf)
         result["paths"][fault] = row
     return result
+
+
+def _interval_covers(d, fault: str, truth: np.ndarray) -> float | None:
+    """Share of the path's windows with an index whose 95 % interval holds the true index (None: no index)."""
+    has = np.isfinite(d.value[fault])
+    if not has.any():
+        return None
+    lo, hi = d.low[fault][has], d.high[fault][has]
+    return float(np.mean((lo <= truth[has]) & (truth[has] <= hi)))
+
+
+def _median_worst(shares: list) -> str:
+    """"median / worst" of per-path shares (None: the path had no index)."""
+    x = np.array([v for v in shares if v is not None], dtype=float)
+    return f"{'-':>20}" if x.size == 0 else f"{np.median(x):10.1%} / {x.min():6.1%}"
 
 
 def _fraction_at(x: float, shape: str) -> float:
@@ -199,7 +217,7 @@ def main() -> None:
     print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
           f"commissioned on {args.commission}")
     print(f"{'fault':14} {'index MAE med/worst':>20} {'indexed':>8} {'others max':>10} {'>0.15':>7} "
-          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8}")
+          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} {'95% holds med/worst':>20}")
     for fault in FAULTS:
         rows = [u["paths"][fault] for u in units]
         mae = np.array([r["mae"] for r in rows])
@@ -207,7 +225,8 @@ def main() -> None:
         print(f"{fault:14} {np.median(mae):9.3f} / {mae.max():.3f} {min(r['indexed'] for r in rows):8.0%} "
               f"{max(r['others_max'] for r in rows):10.3f} "
               f"{max(r['others_share'] for r in rows):7.1%} {np.median(err):9.1%} / {err.max():6.1%} "
-              f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d}")
+              f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d} "
+              f"{_median_worst([r.get('interval_covers') for r in rows])}")
     soonest = [u["healthy_soonest_s"] for u in units]
     finite = [s for s in soonest if s is not None]
     print(f"healthy {args.hours:g} h: soonest forecast alert "

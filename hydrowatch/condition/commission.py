@@ -36,7 +36,6 @@ The recording is refused, and the unit keeps the fleet model, when it cannot com
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -52,46 +51,29 @@ from hydrowatch.condition.model import ConditionModel
 from hydrowatch.condition.refusal import CommissioningError as CommissioningError  # the public name stays here
 from hydrowatch.condition.refusal import check_excitation, fault_present
 from hydrowatch.condition.ridge import level_change, levels_undetermined, valve_profile
+from hydrowatch.condition.supply_bounds import CAPACITY_MARGIN as CAPACITY_MARGIN  # the public names stay here
+from hydrowatch.condition.supply_bounds import LIMIT_SHARE as LIMIT_SHARE
+from hydrowatch.condition.supply_bounds import RELIEF as RELIEF
+from hydrowatch.condition.supply_bounds import RESTRICTED_PARAMETERS as RESTRICTED_PARAMETERS
+from hydrowatch.condition.supply_bounds import kept_supply, on_search_limit, pump_capacity
 from hydrowatch.condition.unit import (
-    BOUND,
-    BOUNDS,
     DEFAULT_PRIOR,
     PRIOR,
     RELATION_PARAMETERS,
     UnitFit,
     identify_unit,
 )
-from hydrowatch.condition.unit_checks import capacity_determined, drawn_flow, valve_error
+from hydrowatch.condition.unit_checks import capacity_determined, valve_error
 from hydrowatch.log import event, get_logger
-from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SAMPLE_RATE_HZ
 
 _log = get_logger(__name__)
 
-RESTRICTED_PARAMETERS = {**RELATION_PARAMETERS, "valve": ("Kq", "Cp")}
-"""What commissioning identifies when the recording does not determine the supply (:data:`SPLIT_AGREEMENT`): load
-and motor relations in full, of the valve and supply only the valve gain and the pump leakage; Dp, Pc, Kr, Vs and ωv
-stay the trained unit's. A recording whose halves disagree has a second basin along the supply's ridge (development
-population, seed 7, duty cycles: load-warning levels off by a factor 2.7 in the whole fit of such units), and
-the trained unit's supply is then the better guess (docs/unseen-units.md)."""
-RELIEF = ("Pc", "Kr")
-"""The relief valve's cracking pressure and gain: a ridge along which a recording may leave them
-(:func:`on_search_limit`)."""
-LIMIT_SHARE = 0.95
-"""A parameter whose |ln(identified / trained)| reaches this share of its search bound ends *on* the bound
-(:func:`on_search_limit`): the fit wanted it further, so the recording did not determine it. Over the duty-cycle
-commissionings of seeds 2033 and 2038–2040 and 2044 the relief's share was ≤ 0.83 on every unit that read ≥ 92 %
-right, 0.985–1.0 on the three that read 67–79 % (0.999 until the evening of 2026-11-26 missed 2044's, at 0.985)."""
 SPLIT_AGREEMENT = 0.1
 """Largest |ln| ratio between the fault levels identified from the recording's first and second half for which
 every parameter is identified (:func:`identify_for_commissioning`). Measured on the development population: 300 s of
 filtered noise 0–4 V, 0.001–0.042 (8 of 8 units; commissioned, 100 % right for the median unit, 99.3 % worst);
 duty cycles, 0.008–1.0 (13 of 16 above 0.15)."""
-CAPACITY_MARGIN = 0.15
-"""A pump the recording never drove to its limit (Dp left to its prior) is given at most this much more capacity
-than the recording drew from it (:func:`pump_capacity`). 0.05 until 2026-11-27: seed 2054's unit 6, whose duty cycle
-drew 0.865 × its capacity, read valve-side faults as the coil (89.4 % right, 98.5 uncapped, 93.1 at 0.15); fresh
-2055 no pooled accuracy worse (docs/unseen-units.md)."""
 KEPT = "kept from the trained unit"
 """``Commissioning.supply`` when the recording does not determine the supply (:func:`identify_for_commissioning`)."""
 UNCERTAINTY_LIMIT = 0.3
@@ -259,70 +241,6 @@ def _levels_on_ridge(features: ConditionFeatures, whole: UnitFit, windows: np.nd
     event(_log, "load levels on the relief's ridge", logging.INFO, shift=point.shift, rise=round(point.rise, 1),
           along=round(point.level_change, 2), kept=round(change, 2))
     return kept if change > 1.0 else None
-
-
-def kept_supply(features: ConditionFeatures, windows: np.ndarray) -> UnitFit:
-    """The unit with the trained unit's supply: only :data:`RESTRICTED_PARAMETERS` identified, the pump's capacity
-    Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × what the recording drew from it (as :func:`pump_capacity` bounds a
-    pump left to its prior).
-
-    A kept pump larger than the unit's is never at its limit in the model where the unit's is, and the fit makes up
-    the missing flow with the pump's leakage: seed 2044, unit 7 (capacity 0.63 × the trained unit's, the relief kept
-    from 0.985 of its search bound) took Cp 10 × and read 15 % of its healthy windows as a pump leak.
-    """
-    p = features.nominal_
-    start = _drawn_capacity(features, windows, p)
-    fit = identify_unit(windows, start, features.sensors, features.viscosity_coefficient, RESTRICTED_PARAMETERS)
-    return fit if start is p else dataclasses.replace(fit, factors={**fit.factors, "Dp": start.Dp / p.Dp})
-
-
-def on_search_limit(fit: UnitFit, names: tuple[str, ...] = RELIEF) -> list[str]:
-    """Which of ``names`` the fit left on its search bound (:data:`~hydrowatch.condition.unit.BOUND`, a factor 4.5
-    from the trained unit's value).
-
-    Such a value is no estimate: the criterion still falls towards the bound, along the relief's ridge the recording
-    does not close. Both halves of a recording can share the ridge point, so the split-half test does not see it (seed
-    2040, duty cycles: the relief gain Kr on its bound on 2 of 19 units; commissioned with it, the worst units, 67.6
-    and 79.3 % right on a later day's duty cycle and slow noise (7 states)). :func:`identify_for_commissioning` holds
-    such a parameter at the trained unit's value and fits the rest again: those two units 100 % right, the cracking
-    pressure 1.25 × and 1.50 × the trained unit's (true 1.29 ×, 1.46 ×); with the trained unit's whole supply instead,
-    97.5 % and healthy windows 88.3 %. On the 76 duty-cycle and 76 filtered-noise commissionings of seeds 2033 and
-    2038–2040 no other relief ended near its bound; the supply line's volume Vs did on two units that read 100 %,
-    and is not tested (docs/unseen-units.md).
-    """
-    return [n for n in names if n in fit.factors
-            and abs(np.log(fit.factors[n])) >= LIMIT_SHARE * BOUNDS.get(n, BOUND)]
-
-
-def pump_capacity(features: ConditionFeatures, fit: UnitFit, windows: np.ndarray) -> UnitFit:
-    """``fit`` with the pump's capacity Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × what the recording drew from
-    it (:func:`~hydrowatch.condition.unit_checks.drawn_flow`), when the recording left Dp to its prior
-    (:func:`left_to_prior`).
-
-    Such a recording never drove the pump to its limit, so Dp stays at the trained unit's value; a unit whose pump
-    delivers less then reaches its limit on a later day where the model expects spare capacity, and reads healthy
-    windows at high demand as a pump leak or ``unknown``. The recording does bound the capacity from below, and a
-    unit with more spare capacity than that bound loses nothing on commands like the commissioning one (it never
-    draws more). Measured on seed 2030 (7 states, 8 recordings that left Dp to its prior; the population chose
-    the rule): the worst unit (true capacity 0.78 × the trained unit's, kept at 1.0, capped at 0.82)
-    went from 72.1 to 95.0 % right on a later day's duty cycle, its healthy windows from 65 to 100 %
-    (docs/unseen-units.md).
-    """
-    if "Dp" not in left_to_prior(fit):
-        return fit
-    p = fit.parameters
-    capped = _drawn_capacity(features, windows, p)
-    if capped is p:
-        return fit
-    event(_log, "pump capacity bounded by the recording", logging.INFO, factor=round(capped.Dp / p.Dp, 3))
-    return dataclasses.replace(fit, parameters=capped, factors={**fit.factors, "Dp": capped.Dp / features.nominal_.Dp})
-
-
-def _drawn_capacity(features: ConditionFeatures, windows: np.ndarray, p: PlantParameters) -> PlantParameters:
-    """``p`` with the pump's capacity Dp·ωp at most (1 + :data:`CAPACITY_MARGIN`) × the flow the recording drew from
-    it (:func:`~hydrowatch.condition.unit_checks.drawn_flow`); ``p`` itself when it is within."""
-    bound = (1.0 + CAPACITY_MARGIN) * drawn_flow(windows, p, features.sensors, features.viscosity_coefficient)
-    return p if bound >= p.Dp * p.omega_p else p.replace(Dp=bound / p.omega_p)
 
 
 def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
