@@ -22,7 +22,8 @@ Per fault kind it prints:
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
   (``None`` forecasts count as wrong and not covered);
 - ``95% holds``: the share of a path's indexed windows whose 95 % interval holds the true index (median and worst
-  unit; the interval's honesty, docs/degradation.md "The 95 % interval");
+  unit; the interval's honesty, docs/degradation.md "The 95 % interval"), and ``±`` its median half-width (the
+  median over paths of each path's median);
 - the healthy machine: the shortest ``alert_in_s`` any component forecasts after ``--hours`` (None: none);
 - per unit, the commissioning recording's share of samples with the pump at its limit (0: the pump's capacity not
   determined; from 0.5 the relief's gain barely seen: the two causes of most misses, docs/degradation.md "Limits").
@@ -156,7 +157,8 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         row = {"duration_min": path.duration_s / 60.0, "mae": float(np.nanmean(np.abs(v - truth))),
                "indexed": float(np.mean(np.isfinite(v))),
                "others_max": float(np.nanmax(others)), "others_share": float(np.nanmean(others > 0.15)),
-               "interval_covers": _interval_covers(d, fault, truth)}
+               "interval_covers": _interval_covers(d, fault, truth),
+               "interval_half_width": _half_width(d, fault)}
         now = int(np.argmax(truth >= 0.5))
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
@@ -176,6 +178,12 @@ def _interval_covers(d, fault: str, truth: np.ndarray) -> float | None:
         return None
     lo, hi = d.low[fault][has], d.high[fault][has]
     return float(np.mean((lo <= truth[has]) & (truth[has] <= hi)))
+
+
+def _half_width(d, fault: str) -> float | None:
+    """Median half-width of the path's 95 % intervals, in index (None: no index)."""
+    has = np.isfinite(d.value[fault])
+    return float(np.median((d.high[fault][has] - d.low[fault][has]) / 2.0)) if has.any() else None
 
 
 def _median_worst(shares: list) -> str:
@@ -217,7 +225,7 @@ def main() -> None:
     print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
           f"commissioned on {args.commission}")
     print(f"{'fault':14} {'index MAE med/worst':>20} {'indexed':>8} {'others max':>10} {'>0.15':>7} "
-          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} {'95% holds med/worst':>20}")
+          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} {'95% holds med/worst':>20} {'±':>6}")
     for fault in FAULTS:
         rows = [u["paths"][fault] for u in units]
         mae = np.array([r["mae"] for r in rows])
@@ -226,7 +234,8 @@ def main() -> None:
               f"{max(r['others_max'] for r in rows):10.3f} "
               f"{max(r['others_share'] for r in rows):7.1%} {np.median(err):9.1%} / {err.max():6.1%} "
               f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d} "
-              f"{_median_worst([r.get('interval_covers') for r in rows])}")
+              f"{_median_worst([r.get('interval_covers') for r in rows])} "
+              f"{np.median([r['interval_half_width'] for r in rows if r.get('interval_half_width') is not None]):6.3f}")
     soonest = [u["healthy_soonest_s"] for u in units]
     finite = [s for s in soonest if s is not None]
     print(f"healthy {args.hours:g} h: soonest forecast alert "

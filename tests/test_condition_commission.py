@@ -16,7 +16,7 @@ import pytest
 import hydrowatch.condition.commission as C
 import hydrowatch.condition.holdout as H
 from hydrowatch.cli import main
-from hydrowatch.condition import ConditionModel
+from hydrowatch.condition import ConditionModel, supply_bounds
 from hydrowatch.condition.commission import CommissioningError, commission
 from hydrowatch.condition.unit import identify_unit
 from hydrowatch.condition.unit_checks import (
@@ -184,8 +184,8 @@ def test_a_relief_on_its_search_bound_is_not_determined_and_held_at_the_trained_
     choice = C.identify_for_commissioning(f, healthy)
     assert choice.supply == "identified" and choice.whole is not None and C.on_search_limit(choice.whole) == []
     kr = abs(float(np.log(choice.whole.factors["Kr"])))
-    assert 0.0 < kr < C.BOUND
-    monkeypatch.setattr(C, "BOUNDS", {**C.BOUNDS, "Kr": kr})  # as if the fit had ended on Kr's bound
+    assert 0.0 < kr < supply_bounds.BOUND
+    monkeypatch.setattr(supply_bounds, "BOUNDS", {**supply_bounds.BOUNDS, "Kr": kr})  # as if the fit ended on the bound
     assert C.on_search_limit(choice.whole) == ["Kr"]
     again = C.identify_for_commissioning(f, healthy)
     assert again.supply == "identified" and again.fit.parameters.Kr == f.nominal_.Kr and "Kr" not in again.fit.factors

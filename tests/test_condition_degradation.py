@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hydrowatch.condition import ConditionFeatures
+from hydrowatch.condition.attribution import NOMINAL_VALVE
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
     ATTRIBUTION_MARGIN,
@@ -18,8 +19,14 @@ from hydrowatch.condition.degradation import (
     severity_standard_error,
     window_degradation,
 )
-from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, moving_load_fit
-from hydrowatch.condition.parity import VALVE_HYPOTHESES
+from hydrowatch.condition.estimates import (
+    MOVING_LOAD,
+    ParityEstimates,
+    moving_load_fit,
+    parity_estimates,
+    window_signals,
+)
+from hydrowatch.condition.parity import VALVE_HYPOTHESES, valve_mse
 from hydrowatch.condition.parity import load_relation as parity_load_relation
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
@@ -118,6 +125,67 @@ def test_valve_attribution_blames_the_part_whose_windows_agree_on_one_severity()
     r = jumpy - np.polyval(np.polyfit(x, jumpy, 1), x)  # equal weights c / MSE: the ordinary least-squares line
     assert pool_misfit(jumpy, mse["relief_spring"][:6], curvature["relief_spring"][:6]) == pytest.approx(
         np.sum(np.log(0.9 + 10.0 * r**2))) and np.sum(np.log(0.9 + 10.0 * r**2)) > 0.0
+
+
+def test_a_window_between_nominal_and_its_fit_costs_the_pool_at_most_its_nominal_mse():
+    # the measured case (tuning seed 2074, unit 2, a relief spring at true index 0.1-0.3): in windows where θ0's pump
+    # is at its limit the relief stays shut at every severity up to 0.3, where it opens and the fit finds a narrow
+    # valley 5-7 % below the nominal MSE with a small curvature; the parabola through it put 0.4-2.2 nats per window
+    # on the relief at the pool's trend (0.07), and the coil took the pool by 6-25
+    n = 12
+    limited = np.isin(np.arange(n), [5, 6, 7])
+    mse = {"pump_leak": np.full(n, 5.0), "relief_spring": np.where(limited, 0.94, 0.98),
+           "valve_coil": np.full(n, 1.0), "valve_leak": np.full(n, 5.0)}
+    severity = {f: np.full(n, 0.07) for f in mse}
+    severity["relief_spring"] = np.where(limited, 0.30, 0.07)
+    severity["valve_coil"] = np.full(n, 0.05)
+    curvature = {f: np.full(n, 1.25e4) for f in mse}  # c / MSE as measured: 1.25e4 where the relief cracks, 70 not
+    curvature["relief_spring"] = np.where(limited, 66.0, 1.25e4)
+    nominal = np.where(limited, 1.0, 1.5)  # the nominal model: every valve-side part at 0
+    valid = np.ones(n, dtype=bool)
+    s, m, c = severity["relief_spring"], mse["relief_spring"], curvature["relief_spring"]
+    unbounded = pool_misfit(s, m, c)
+    bounded = pool_misfit(s, m, c, nominal)
+    # the trend: weighted least squares (weights c / MSE), near the cracking windows' 0.07
+    x = np.arange(n, dtype=float)
+    line = np.polyval(np.polyfit(x, s, 1, w=np.sqrt(c / m)), x)
+    assert unbounded == pytest.approx(np.sum(np.log(m + c * (s - line) ** 2)))
+    assert bounded == pytest.approx(np.sum(np.log(np.where(limited, 1.0, m + c * (s - line) ** 2))))
+    assert np.all(np.abs(line - 0.07) < 0.01) and unbounded - bounded > 3.0
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n)[-1] == 2  # the coil, by the parabola
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n, nominal=nominal)[-1] == 1
+    # only windows whose trend lies between nominal and their fit are bounded: here the trend (~0.04) lies between 0
+    # and the fits at 0.1 (bounded to their nominal MSE, = MSE_min: no cost) and on the other side of 0 from the
+    # fits at -0.02 (the parabola's cost)
+    jumpy = np.tile([-0.02, 0.1], 3)
+    line = np.polyval(np.polyfit(np.arange(6.0), jumpy, 1), np.arange(6.0))
+    assert np.all((line > 0.0) & (line < 0.1))
+    assert pool_misfit(jumpy, np.ones(6), np.full(6, 10.0), np.ones(6)) == pytest.approx(
+        np.sum(np.where(jumpy < 0.0, np.log(1.0 + 10.0 * (jumpy - line) ** 2), 0.0)))
+    # NaN (estimates without the nominal MSE) bounds nothing
+    assert pool_misfit(s, m, c, np.full(n, np.nan)) == pytest.approx(unbounded)
+
+
+def test_the_nominal_valve_mse_is_every_hypothesis_at_severity_0():
+    """Known truth: the four valve-side hypotheses are one model at severity 0, and between 0 and a worn relief's
+    fit its cost does not rise above the nominal one (the premise of the pool's bound)."""
+    unit = random_unit(np.random.default_rng(3))
+    worn = fault_parameters(unit, "relief_spring", severity_for_speed_drop("relief_spring", 0.5 * ALERT_DROP, unit))
+    w = _windows([worn], duty_cycle(30, (0.5, 3.5), seed=4), 5)[0]
+    sig = window_signals(w, ("flow", "speed", "torque"), unit)
+    est = parity_estimates(sig, unit)
+    nominal = est.mse[NOMINAL_VALVE]
+    for fault in VALVE_HYPOTHESES:
+        at_zero = valve_mse(sig.flow, sig.spool, sig.load_pressure, unit, fault, np.zeros(len(w)), sig.leak,
+                            pl_noise=sig.pl_noise)
+        np.testing.assert_allclose(at_zero, nominal, rtol=1e-9)
+    s_hat = est.severity["relief_spring"]
+    cracks = s_hat > 0.02  # the windows where the relief passes flow (in the last, the pump is at its limit)
+    assert cracks.sum() >= 4 and (est.mse["relief_spring"][cracks] < 0.5 * nominal[cracks]).all()
+    for frac in (0.25, 0.5, 0.75):
+        between = valve_mse(sig.flow, sig.spool, sig.load_pressure, unit, "relief_spring", frac * s_hat, sig.leak,
+                            pl_noise=sig.pl_noise)
+        assert (between <= nominal * (1 + 1e-9)).all()
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from hydrowatch.condition import parity
+# the module, not the package: its __init__ imports estimates, which imports this (tests/test_layers.py)
+import hydrowatch.condition.parity as parity
 
 ATTRIBUTION_WINDOWS = 60
 """Valid windows (300 s) whose valve-relation fits decide which valve-side part wears. Wear is slow against five
@@ -33,7 +34,14 @@ worn part blamed on a look-alike by more than the margin stays blamed (seed 2027
 its windows)."""
 
 
-def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) -> np.ndarray:
+NOMINAL_VALVE = "valve_nominal"
+"""Key, in :class:`~hydrowatch.condition.estimates.ParityEstimates`' MSEs, of the valve relation's MSE with every
+valve-side part at nominal (severity 0, the P̂L noise's share taken out as in the fits): the same model for all four
+hypotheses, and what :func:`pool_misfit` bounds a window's cost by between nominal and its fit."""
+
+
+def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
+                nominal: np.ndarray | None = None) -> np.ndarray:
     """Σ log MSE of one valve-side hypothesis over a pool of consecutive valid windows that share one severity trend.
 
     Each window's free fit gives MSE(s) ≈ MSE_min + c·(s − ŝ)² (:class:`~hydrowatch.condition.estimates.
@@ -42,10 +50,18 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) ->
     the misfit is Σ log(MSE_min + c·(ŝ − trend)²). A look-alike hypothesis explains each window on its own, as well
     as the worn part or better, but only with a severity that moves with the command (docs/degradation.md).
 
+    With ``nominal`` (each window's MSE at severity 0, :data:`NOMINAL_VALVE`), a window whose trend lies between 0
+    and its fit costs at most that: a cost with one valley at ŝ is nowhere between nominal and ŝ above its value at
+    nominal, while the parabola, whose c is measured at ŝ, is far above it where the cost is flat and then drops
+    into a narrow valley (a relief that the model's pump at its limit keeps shut until its spring is weak enough to
+    open it: docs/degradation.md, "Which valve-side part").
+
     Parameters
     ----------
     severity, mse, curvature : ndarray, shape (..., L)
         ŝ, MSE_min [(L/min)²] and c of L consecutive valid windows in time order (last axis).
+    nominal : ndarray, shape (..., L), optional
+        The windows' MSE at severity 0 [(L/min)²]; NaN or None: unbounded.
 
     Returns
     -------
@@ -59,12 +75,19 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray) ->
     level = (w * s).sum(axis=-1, keepdims=True) / total
     sxx = (w * dx**2).sum(axis=-1, keepdims=True)
     slope = (w * dx * (s - level)).sum(axis=-1, keepdims=True) / np.maximum(sxx, 1e-300)
-    return np.log(m + c * (s - level - slope * dx) ** 2).sum(axis=-1)
+    trend = level + slope * dx
+    cost = m + c * (s - trend) ** 2
+    if nominal is not None:
+        between = (trend * s >= 0.0) & (np.abs(trend) <= np.abs(s))
+        bound = np.maximum(np.nan_to_num(np.asarray(nominal, dtype=np.float64), nan=np.inf), m)
+        cost = np.where(between, np.minimum(cost, bound), cost)
+    return np.log(cost).sum(axis=-1)
 
 
 def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
                            curvature: Mapping[str, np.ndarray], valid: np.ndarray,
-                           pool: int = ATTRIBUTION_WINDOWS, with_excess: bool = False) -> Any:
+                           pool: int = ATTRIBUTION_WINDOWS, with_excess: bool = False,
+                           nominal: np.ndarray | None = None) -> Any:
     """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
 
     The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
@@ -79,11 +102,14 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
     with_excess : bool, default False
         Also return each hypothesis's pool misfit minus the best's, shape (n, 4) (0 for the blamed part, inf
         where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` tests.
+    nominal : ndarray, shape (n,), optional
+        Each window's valve MSE at nominal (:data:`NOMINAL_VALVE`; :func:`pool_misfit`'s bound).
     """
     m = int(valid.sum())
     misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
+    bound = np.full(m, np.nan) if nominal is None else np.asarray(nominal, dtype=np.float64)[valid]
     for j, fault in enumerate(parity.VALVE_HYPOTHESES):
-        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)]
+        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)] + [bound]
         for k in range(min(pool - 1, m)):  # the first windows: the pool so far
             misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
         if m >= pool:

@@ -58,6 +58,7 @@ import numpy as np
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
+from hydrowatch.condition.attribution import NOMINAL_VALVE
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
@@ -225,7 +226,9 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if blamed is None:
         severity, misfit, curvature = ({f: _spread(a[f], valid) for f in parity.VALVE_HYPOTHESES}
                                        for a in (estimates.severity, mse, estimates.curvature))
-        blamed, excess = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_excess=True)
+        at_nominal = own.mse.get(NOMINAL_VALVE)
+        blamed, excess = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_excess=True,
+                                                 nominal=None if at_nominal is None else _spread(at_nominal, valid))
                           if "valve" in relations and valid.any() else (np.full(n, -1), None))
     contender = (np.zeros((n, len(parity.VALVE_HYPOTHESES)), dtype=bool) if excess is None
                  else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
@@ -321,9 +324,10 @@ class DegradationStream:
     """One machine's degradation index online (river style): :meth:`update` with each valid window's free fits
     returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows: the
     valve-side part is the hypothesis with the smallest :func:`pool_misfit` over the last ``pool`` valid windows (a
-    ring of ``pool`` × 4 × 3 floats: each hypothesis's ŝ, MSE and c), the rest is the window's own; where the unit's
-    pump capacity is not known (``capacity_known_`` false), also a ring of ``pool`` × 3 floats (pump_leak's ŝ, Pc / P̄s,
-    determined) and the machine's :class:`~hydrowatch.condition.capacity.MachineCapacity` (101 counts).
+    ring of ``pool`` × 4 × 3 floats: each hypothesis's ŝ, MSE and c; one of ``pool`` nominal MSEs), the rest is the
+    window's own; where the unit's pump capacity is not known (``capacity_known_`` false), also a ring of ``pool`` × 3
+    floats (pump_leak's ŝ, Pc / P̄s, determined) and the machine's
+    :class:`~hydrowatch.condition.capacity.MachineCapacity` (101 counts).
 
     Parameters
     ----------
@@ -336,6 +340,8 @@ class DegradationStream:
         self.features, self.pool = features, pool
         self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
         """Each valid window's ŝ, MSE and c per valve hypothesis."""
+        self._nominal = Ring(pool)
+        """Each valid window's valve MSE at nominal (NaN where the estimates lack it: :func:`pool_misfit`)."""
         self._loads = Ring(pool)
         known = getattr(features, "capacity_known_", True)
         self._capacity = None if known else MachineCapacity()
@@ -351,8 +357,9 @@ class DegradationStream:
         blamed, excess, capacity = np.array([-1]), None, np.zeros(1)
         if "valve" in f.relations_:
             self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
+            self._nominal.add(float(mse.get(NOMINAL_VALVE, np.nan)))
             ring = np.moveaxis(self._fits.rows(), 0, -1)  # (hypothesis, ŝ / MSE / c, window)
-            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2])
+            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], self._nominal.rows()[None, :])
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
             if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
                 self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),

@@ -20,6 +20,7 @@ import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import parity
+from hydrowatch.condition.attribution import NOMINAL_VALVE
 from hydrowatch.condition.capacity import PUMP_LIMIT, limit_ratio
 from hydrowatch.condition.determinacy import STANDSTILL
 from hydrowatch.condition.held import window_noise
@@ -136,7 +137,8 @@ class ParityEstimates:
         Severity of every fault on its :mod:`hydrowatch.plant.faults` scale (load and motor_leak
         from their own relations, the valve-side faults from one-hypothesis fits of the valve relation).
     mse : dict of str to ndarray
-        Minimum mean squared residual: ``load`` (N·m)², ``motor`` and each valve hypothesis (L/min)².
+        Minimum mean squared residual: ``load`` (N·m)², ``motor`` and each valve hypothesis (L/min)²; also the valve
+        relation's at nominal, :data:`~hydrowatch.condition.attribution.NOMINAL_VALVE` (every valve-side part at 0).
     curvature : dict of str to ndarray
         d(MSE)/d(severity²) of every fault, so that MSE(s) = mse + curvature·(s − ŝ)² (exact for
         the linear relations load, motor_leak and valve_leak; Gauss-Newton's near the fit for the others).
@@ -228,17 +230,17 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
                                                              leak=sig.leak)
     mse["motor"] = rms**2
     curvature["motor_leak"] = np.mean(phi**2, axis=1)
-    nominal = None if valve_search else parity.valve_mse(sig.flow, sig.spool, sig.load_pressure, p, None,
-                                                          np.zeros(sig.flow.shape[0]), sig.leak,
-                                                          pl_noise=sig.pl_noise)
+    nominal = parity.valve_mse(sig.flow, sig.spool, sig.load_pressure, p, None, np.zeros(sig.flow.shape[0]),
+                               sig.leak, pl_noise=sig.pl_noise)
+    mse[NOMINAL_VALVE] = nominal  # every valve-side part at nominal: what a pool's misfit is bounded by (attribution)
     for fault in parity.VALVE_HYPOTHESES:
-        if nominal is None:
+        if valve_search:
             severity[fault], mse[fault], curvature[fault] = parity.valve_fit(sig.flow, sig.spool, sig.load_pressure,
                                                                              p, fault, leak=sig.leak,
                                                                              pl_noise=sig.pl_noise, flat_search=False)
         else:
             severity[fault], mse[fault], curvature[fault] = np.zeros(nominal.size), nominal, np.zeros(nominal.size)
-    if nominal is None:
+    if valve_search:
         best = np.min([mse[f] for f in parity.VALVE_HYPOTHESES], axis=0)
         for fault in parity.VALVE_HYPOTHESES:
             severity[fault], mse[fault], curvature[fault] = _refit_poor_fits(sig, p, fault, severity[fault],
