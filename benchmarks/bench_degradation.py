@@ -18,6 +18,7 @@ Per fault kind it prints:
 - ``others max``: the largest (signed: false wear, not "better than new") index any *other* component reads on
   that path (worst unit), and the share of windows
   where one reads above 0.15;
+- ``false fcst``: at that moment, paths on which another part forecasts an alert (any time ahead);
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
   (``None`` forecasts count as wrong and not covered);
@@ -163,6 +164,10 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
         f = forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
+        wrong = {g: forecast_alert(t[: now + 1], d.history(g)[: now + 1]).alert_in_s for g in FAULTS if g != fault}
+        found = {g: x for g, x in wrong.items() if x is not None}  # a false alert forecast
+        row["others_forecast_s"] = min(found.values(), default=None)
+        row["others_forecast_part"] = min(found, key=found.__getitem__) if found else None
         row.update(remaining_s=remaining, forecast_s=f.alert_in_s, ci95=list(f.ci95), model=f.model, reason=f.reason)
         row["forecast_err"] = None if f.alert_in_s is None else abs(f.alert_in_s - remaining) / remaining
         lo, hi = f.ci95
@@ -225,7 +230,8 @@ def main() -> None:
     print(f"\n{len(units)} units (seed {args.seed}), {args.hours:g} h each, working duty cycle {VOLTS} V, later day, "
           f"commissioned on {args.commission}")
     print(f"{'fault':14} {'index MAE med/worst':>20} {'indexed':>8} {'others max':>10} {'>0.15':>7} "
-          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} {'95% holds med/worst':>20} {'±':>6}")
+          f"{'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} {'95% holds med/worst':>20} {'±':>6} "
+          f"{'false fcst':>10}")
     for fault in FAULTS:
         rows = [u["paths"][fault] for u in units]
         mae = np.array([r["mae"] for r in rows])
@@ -235,7 +241,8 @@ def main() -> None:
               f"{max(r['others_share'] for r in rows):7.1%} {np.median(err):9.1%} / {err.max():6.1%} "
               f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d} "
               f"{_median_worst([r.get('interval_covers') for r in rows])} "
-              f"{np.median([r['interval_half_width'] for r in rows if r.get('interval_half_width') is not None]):6.3f}")
+              f"{np.median([r['interval_half_width'] for r in rows if r.get('interval_half_width') is not None]):6.3f} "
+              f"{sum(r.get('others_forecast_s') is not None for r in rows):10d}")
     soonest = [u["healthy_soonest_s"] for u in units]
     finite = [s for s in soonest if s is not None]
     print(f"healthy {args.hours:g} h: soonest forecast alert "

@@ -10,7 +10,7 @@ alias every 60 s. The trainer trains on a simulated set (as benchmarks/bench_bus
 the scorers switch models. A new model starts each machine's attribution ring and forecast history again, and they take
 300 simulated s to fill: with the trainer's period in wall-clock seconds a quarter-speed run never reached the scorers'
 steady state (2026-11-27, 1 hour at 1000 machines: their memory rose in steps within each 20-minute model).
-Scorers keep ``--forecast-history`` equal to the warm-up (in simulated s) so that their bounded forecast rings (46 kB
+Scorers keep ``--forecast-history`` equal to the warm-up (in simulated s) so that their bounded forecast rings (81 kB
 per machine at the default 2 h) are full once the warm-up ends; everything else is as deployed. The web's timelines
 (360 windows per machine) fill for 1800 simulated s, by design; a shorter warm-up says so.
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hydrowatch.condition import ConditionFeatures
-from hydrowatch.condition.attribution import NOMINAL_VALVE
+from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
     ATTRIBUTION_MARGIN,
@@ -303,6 +303,25 @@ def test_a_worn_valve_side_part_the_pool_cannot_tell_from_a_look_alike_has_no_in
     want = float(degradation_index("relief_spring", 0.1, nominal))
     assert np.isnan(d.value["relief_spring"][:4]).all() and d.value["relief_spring"][4:] == pytest.approx(
         np.full(n - 4, want))
+    # the first 4 windows' relief was blamed, not told apart: no index, but a provisional value that the pool which
+    # told it apart (window 4's, holding them) confirms for the forecast's history; the coil has none (not blamed)
+    assert d.provisional is not None and d.provisional["relief_spring"][:4] == pytest.approx(np.full(4, want))
+    assert np.isnan(d.provisional["relief_spring"][4:]).all() and np.isnan(d.provisional["valve_coil"]).all()
+    assert d.history("relief_spring") == pytest.approx(np.full(n, want))
+    assert d.window(0) == {f: d.window(0)[f] for f in ("load", "motor_leak", "pump_leak", "valve_leak")}
+    assert d.window(0, measured=True)["relief_spring"] == {"value": round(want, 4), "measured": False,
+                                                           "provisional": True}
+
+
+def test_a_provisional_value_is_confirmed_only_by_a_told_window_within_one_pool():
+    measured = np.array([np.nan, np.nan, np.nan, 0.30, 0.32, np.nan, np.nan, 0.40])
+    provisional = np.array([0.20, 0.22, 0.25, np.nan, np.nan, 0.10, np.nan, np.nan])
+    # pool 3: window 0's next told window (3) is a whole pool later; windows 1, 2 within it; window 5's (7) within
+    np.testing.assert_array_equal(confirmed(measured, provisional, pool=3),
+                                  [np.nan, 0.22, 0.25, 0.30, 0.32, 0.10, np.nan, 0.40])
+    # never told apart afterwards: nothing confirmed (a look-alike blamed while the pool hesitated)
+    np.testing.assert_array_equal(confirmed(np.full(4, np.nan), np.full(4, 0.3), pool=60), np.full(4, np.nan))
+    np.testing.assert_array_equal(confirmed(measured, np.full(8, np.nan), pool=3), measured)
 
 
 def test_the_loads_index_does_not_depend_on_the_brakes_shape_near_standstill():

@@ -131,6 +131,40 @@ def test_already_beyond_the_alert_reads_zero():
     assert f.alert_in_s == 0.0 and f.level > 1.0
 
 
+def test_forecast_stream_confirms_provisional_values_as_a_files_history_does():
+    """A coil wearing fast: blamed but not yet told apart for its first 60 windows (provisional), then told. The
+    stream's history holds the provisional values a told window within one pool confirms, as
+    :meth:`Degradation.history` does for a file, and forecasts from them; the published entries leave them out."""
+    from hydrowatch.condition.attribution import confirmed
+    from hydrowatch.condition.forecast_stream import ForecastStream
+    from hydrowatch.training.chunks import WindowVerdict
+    from hydrowatch.training.messages import verdict_batch
+    from hydrowatch.verdict import Verdict
+
+    t = np.arange(0.0, 870.0, HOP)  # a coil from 0 at 120 s to its warning at 870 s
+    coil = np.round(_noisy(np.clip((t - 120.0) / 750.0 * 0.5, 0.0, None), 5), 4)
+    told = t >= 570.0  # the first 60 windows of wear past 0.1: the pool could not tell the coil from the relief
+    early = (t >= 270.0) & ~told  # from the true index 0.1
+    stream = ForecastStream()
+    for i in range(t.size):
+        entry = ({"value": coil[i], "measured": False, "provisional": True} if early[i]
+                 else {"value": coil[i], "measured": True})
+        stream.update(float(t[i]), {"valve_coil": entry})
+    measured = np.where(early, np.nan, coil)
+    history = confirmed(measured, np.where(early, coil, np.nan))
+    assert early.sum() == 60 and np.isfinite(history[early]).sum() == 59  # one pool before the first told window
+    _, kept = stream.history()
+    np.testing.assert_allclose(kept[:, 4], history, rtol=1e-6)  # FAULTS[4]: valve_coil
+    got, alone = stream.get()["valve_coil"], forecast_alert(t, measured)
+    assert got.alert_in_s == pytest.approx(forecast_alert(t, history).alert_in_s, rel=1e-6)
+    assert got.alert_in_s == pytest.approx(750.0, rel=0.2) and got.points > alone.points
+    # a provisional entry is not published: the health message carries the window's index only
+    item = WindowVerdict("f/m", 0.0, HOP, Verdict("healthy", 1.0, {"healthy": 1.0}), None,
+                         {"valve_coil": {"value": 0.3, "measured": False, "provisional": True},
+                          "load": {"value": 0.1, "ci95": [0.0, 0.2], "measured": True}})
+    assert [d["fault"] for d in verdict_batch(item, "1").to_pylist()[0]["degradation"]] == ["load"]
+
+
 def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
     from hydrowatch.condition.forecast_stream import ForecastStream
     from hydrowatch.errors import ParameterError
@@ -147,8 +181,8 @@ def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
         stream.update(float(t[i]), {"load": {"value": load[i], "ci95": [0.0, 1.0]},
                                     "valve_coil": {"value": 0.0 if blamed[i] else coil[i], "measured": not blamed[i]}})
     kept_t, kept = stream.history()
-    assert len(stream) == 500 and kept_t.tolist() == t[-500:].tolist() and stream.nbytes == 500 * (8 + 6 * 4)
-    assert np.isnan(kept[blamed[-500:], 5]).all() and np.isnan(kept[:, 1]).all()  # pump_leak never seen: NaN
+    assert len(stream) == 500 and kept_t.tolist() == t[-500:].tolist() and stream.nbytes == 500 * (8 + 2 * 6 * 4)
+    assert np.isnan(kept[blamed[-500:], 4]).all() and np.isnan(kept[:, 1]).all()  # pump_leak never seen: NaN
     got = stream.get()
     assert set(got) == {"load", "valve_coil"}  # only the parts seen are forecast
     want = forecast_alert(t[-500:], load[-500:])

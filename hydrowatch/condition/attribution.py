@@ -118,3 +118,33 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
     out[valid] = np.argmin(misfit, axis=1)
     excess[valid] = misfit - misfit.min(axis=1, keepdims=True)
     return (out, excess) if with_excess else out
+
+
+def confirmed(measured: np.ndarray, provisional: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:
+    """One part's history for a forecast, shape (n,): its own estimates (``measured``), and its provisional values
+    where a pool within ``pool`` valid windows later told the part apart (a finite ``measured`` in the next
+    ``pool − 1`` windows): that pool held the provisional window's fit and chose this part by the margin.
+
+    A part blamed while the pool could not yet tell it from a look-alike (:data:`ATTRIBUTION_MARGIN`) has no index
+    there (``score --json`` leaves it out); but a fast wear spends minutes so (a coil wearing to its warning in
+    14 minutes: its first 5 minutes of wear, 60 windows, untold even on the unit's true parameters), and a forecast
+    from the told windows alone came too late (docs/degradation.md, "Which valve-side part").
+
+    Parameters
+    ----------
+    measured, provisional : ndarray, shape (n,)
+        Per valid window, in order: the part's own index (NaN where it has none) and its index where it was blamed
+        but not told apart (NaN elsewhere).
+    pool : int, default :data:`ATTRIBUTION_WINDOWS`
+    """
+    out = np.array(measured, dtype=np.float64, copy=True)
+    p = np.asarray(provisional, dtype=np.float64)
+    has = np.flatnonzero(np.isfinite(out))
+    waiting = np.flatnonzero(np.isfinite(p))
+    if has.size == 0 or waiting.size == 0:
+        return out
+    following = np.searchsorted(has, waiting, side="right")  # the next told window after each provisional one
+    ok = following < has.size
+    ok[ok] = has[following[ok]] - waiting[ok] < pool
+    out[waiting[ok]] = p[waiting[ok]]
+    return out

@@ -58,7 +58,7 @@ import numpy as np
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
-from hydrowatch.condition.attribution import NOMINAL_VALVE
+from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
@@ -160,11 +160,22 @@ class Degradation:
     low: Mapping[str, np.ndarray]
     high: Mapping[str, np.ndarray]
     measured: Mapping[str, np.ndarray]
+    provisional: Mapping[str, np.ndarray] | None = None
+    """fault → (n,): the blamed valve-side part's own index where the pool could not yet tell it from a look-alike
+    (its ``value`` NaN there), NaN elsewhere; None: none kept."""
+    valid: np.ndarray | None = None
+    """(n,) bool: the windows the attribution pool counts (valid ones); None: every window."""
 
     def history(self, fault: str) -> np.ndarray:
         """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,): what a forecast reads
-        (a look-alike blamed for a while is neither wear nor a part replaced)."""
-        return np.where(self.measured[fault], self.value[fault], np.nan)
+        (a look-alike blamed for a while is neither wear nor a part replaced); with the provisional values a later
+        pool confirmed (:func:`~hydrowatch.condition.attribution.confirmed`, over the valid windows)."""
+        own = np.where(self.measured[fault], self.value[fault], np.nan)
+        if self.provisional is None:
+            return own
+        valid = np.ones(own.size, dtype=bool) if self.valid is None else self.valid
+        own[valid] = confirmed(own[valid], self.provisional[fault][valid])
+        return own
 
     def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
@@ -177,6 +188,9 @@ class Degradation:
         if measured:
             for f, entry in out.items():
                 entry["measured"] = bool(self.measured[f][i])
+            for f, p in (self.provisional or {}).items():
+                if np.isfinite(p[i]):  # blamed, not yet told apart: for the forecast's history, not published
+                    out[f] = {"value": round(float(p[i]), 4), "measured": False, "provisional": True}
         return out
 
 
@@ -219,7 +233,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         ``capacity`` None) from the history.
     """
     n = valid.size
-    value, low, high = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(3))
+    value, low, high, provisional = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(4))
     measured = {f: np.zeros(n, dtype=bool) for f in FAULTS}
     own = _load_away_from_standstill(estimates)
     mse = {f: own.mse[RELATION_OF[f] if f in ("load", "motor_leak") else f] for f in FAULTS}
@@ -266,7 +280,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         unknown = mine & ~determined | not_told  # the part's own fit does not determine it: no index
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
-    return Degradation(value, low, high, measured)
+        provisional[fault][valid] = np.where(mine & determined & not_told, v, np.nan)
+    return Degradation(value, low, high, measured, provisional, valid)
 
 
 def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:

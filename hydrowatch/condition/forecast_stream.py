@@ -9,8 +9,9 @@ gives it, :meth:`~hydrowatch.condition.degradation.DegradationStream.update`) an
 **Bounded memory.** The history is a ring of the last ``capacity`` windows that had an index: their start times
 (float64) and each part's index (float32: the index travels rounded to 1e-4, float32 keeps that exactly enough,
 ≤ 1e-6 at the index's scale of ≤ 10), NaN where the part's value was not its own estimate (a valve-side look-alike
-was blamed, :meth:`~hydrowatch.condition.degradation.Degradation.history`). With the default
-:data:`HISTORY_WINDOWS` (1440: two hours of 5 s windows) that is 1440 × (8 + 6 × 4) B = 46 kB per machine. A
+was blamed, :meth:`~hydrowatch.condition.degradation.Degradation.history`), and its provisional value where it was
+blamed before the pool could tell it apart (float32, kept until a later window confirms it). With the default
+:data:`HISTORY_WINDOWS` (1440: two hours of 5 s windows) that is 1440 × (8 + 2 × 6 × 4) B = 81 kB per machine. A
 forecast rests on at most that history, so it reaches at most :data:`~hydrowatch.condition.forecast.HORIZON_FACTOR`
 × its span ahead (20 h for two hours); a part wearing over days needs a longer ``capacity``.
 """
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from hydrowatch.condition.attribution import confirmed
 from hydrowatch.condition.forecast import Forecast, forecast_alert
 from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import ParameterError
@@ -48,6 +50,8 @@ class ForecastStream:
         self.capacity = int(capacity)
         self._t = Ring(self.capacity)
         self._index = Ring(self.capacity, (len(FAULTS),), np.float32)
+        self._provisional = Ring(self.capacity, (len(FAULTS),), np.float32)
+        """Each part's index where it was blamed but not yet told apart (``"provisional"`` entries), NaN elsewhere."""
         self._seen: set[str] = set()
         """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
         with a finite value in the file)."""
@@ -58,25 +62,32 @@ class ForecastStream:
     @property
     def nbytes(self) -> int:
         """Bytes of the history's arrays."""
-        return int(self._t.nbytes + self._index.nbytes)
+        return int(self._t.nbytes + self._index.nbytes + self._provisional.nbytes)
 
     def update(self, start_s: float, degradation: Mapping[str, Mapping[str, Any]]) -> None:
-        """Add one window with an index: its start time, s, and ``{fault: {"value", "measured"}}``
-        (``measured`` absent reads True). Returns nothing."""
-        row = np.full(len(FAULTS), np.nan, dtype=np.float32)
+        """Add one valid window: its start time, s, and ``{fault: {"value", "measured", "provisional"}}``
+        (``measured`` absent reads True; a ``provisional`` value waits for a later window to confirm it,
+        :func:`~hydrowatch.condition.attribution.confirmed`). Returns nothing."""
+        row, waiting = (np.full(len(FAULTS), np.nan, dtype=np.float32) for _ in range(2))
         for j, fault in enumerate(FAULTS):
             entry = degradation.get(fault)
             if entry is None or not np.isfinite(entry["value"]):
+                continue
+            if entry.get("provisional", False):
+                waiting[j] = entry["value"]
                 continue
             self._seen.add(fault)
             if entry.get("measured", True):
                 row[j] = entry["value"]
         self._t.add(start_s)
         self._index.add(row)
+        self._provisional.add(waiting)
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
-        """The windows held in arrival order: start times (n,), s, and indices (n, len(FAULTS)), float64."""
-        return self._t.rows(), self._index.rows().astype(np.float64)
+        """The windows held in arrival order: start times (n,), s, and each part's history (n, len(FAULTS)), float64:
+        its own index, and its provisional values that a later window confirmed."""
+        index, waiting = self._index.rows().astype(np.float64), self._provisional.rows().astype(np.float64)
+        return self._t.rows(), np.stack([confirmed(index[:, j], waiting[:, j]) for j in range(len(FAULTS))], axis=1)
 
     def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
         """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and

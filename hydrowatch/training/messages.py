@@ -30,7 +30,7 @@ def verdict_batch(item: WindowVerdict, model_version: str) -> pa.RecordBatch:
         "reason": [reason], "model_version": [model_version],
         "degradation": [None if item.degradation is None else [
             {"fault": f, "index": float(d["value"]), "low": float(d["ci95"][0]), "high": float(d["ci95"][1])}
-            for f, d in item.degradation.items()]],
+            for f, d in item.degradation.items() if not d.get("provisional", False)]],
     }
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(HEALTH_VERDICT))
 

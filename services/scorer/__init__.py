@@ -110,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "after every N of its windows, at a phase of its own (default 60: 5 min of 5 s windows; "
                              "12-22 ms per machine and forecast, 0.04-0.07 core per 1000 machines; 0: no forecasts)")
     parser.add_argument("--forecast-history", type=float, default=7200.0, metavar="SECONDS",
-                        help="seconds of each machine's windows a forecast rests on (default 7200: 46 kB per machine; "
+                        help="seconds of each machine's windows a forecast rests on (default 7200: 81 kB per machine; "
                              "a forecast reaches at most 10x this ahead)")
     parser.add_argument("--expected", action=argparse.BooleanOptionalAction, default=True,
                         help="methods that predict the sensors (parity, entropy): publish each window's measured and "
