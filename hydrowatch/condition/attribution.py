@@ -126,9 +126,9 @@ def confirmed(measured: np.ndarray, provisional: np.ndarray, pool: int = ATTRIBU
     ``pool − 1`` windows): that pool held the provisional window's fit and chose this part by the margin.
 
     A part blamed while the pool could not yet tell it from a look-alike (:data:`ATTRIBUTION_MARGIN`) has no index
-    there (``score --json`` leaves it out); but a fast wear spends minutes so (a coil wearing to its warning in
-    14 minutes: its first 5 minutes of wear, 60 windows, untold even on the unit's true parameters), and a forecast
-    from the told windows alone came too late (docs/degradation.md, "Which valve-side part").
+    there (``score --json`` leaves it out); but a fast wear spends minutes so (a coil wearing from new to its warning
+    in 12.5 minutes: 60 windows from true index 0.1 untold even on the unit's true parameters), and a forecast from
+    the told windows alone came too late (docs/degradation.md, "The forecast").
 
     Parameters
     ----------

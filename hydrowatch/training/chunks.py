@@ -152,7 +152,8 @@ class WindowVerdict:
     degradation : dict or None
         Degradation index per part, ``{fault: {"value", "ci95": [lo, hi], "measured"}}`` (parity method, valid
         windows; :meth:`hydrowatch.condition.degradation.Degradation.window`; ``measured`` False where a valve-side
-        look-alike was blamed), None otherwise.
+        look-alike was blamed; a part blamed before the pool told it apart appears as ``{"value", "measured": False,
+        "provisional": True}``, for the forecast's history only: the health message leaves it out), None otherwise.
     expected : dict or None
         What the model expected each sensor to read, beside what it read (:class:`hydrowatch.expected.ExpectedSensor`
         by sensor), when the driver was asked for it and the method predicts sensors; None otherwise.
