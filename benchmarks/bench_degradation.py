@@ -46,7 +46,7 @@ from threadpoolctl import threadpool_limits
 from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.degradation import window_degradation
-from hydrowatch.condition.forecast import forecast_alert
+from hydrowatch.condition.forecast import forecast_alert, ruled_out_forecast
 from hydrowatch.condition.unit_checks import pump_at_limit_share
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
@@ -143,7 +143,7 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         d = window_degradation(_concat(fits[i]), ok, features.nominal_, blocks, features.relations_,
                                capacity_known=features.capacity_known_)
         if spec.machine == "healthy":
-            forecasts = {f: forecast_alert(t, d.history(f)) for f in FAULTS}
+            forecasts = {f: _forecast(t, d, f, t.size - 1) for f in FAULTS}
             soonest = [f.alert_in_s for f in forecasts.values()]
             result["healthy_soonest_s"] = min((s for s in soonest if s is not None), default=None)
             result["healthy_max_index"] = float(max(np.nanmax(np.abs(d.value[f])) for f in FAULTS))
@@ -163,8 +163,8 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         now = int(np.argmax(truth >= 0.5))
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
-        f = forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
-        wrong = {g: forecast_alert(t[: now + 1], d.history(g)[: now + 1]).alert_in_s for g in FAULTS if g != fault}
+        f = _forecast(t, d, fault, now)
+        wrong = {g: _forecast(t, d, g, now).alert_in_s for g in FAULTS if g != fault}
         found = {g: x for g, x in wrong.items() if x is not None}  # a false alert forecast
         row["others_forecast_s"] = min(found.values(), default=None)
         row["others_forecast_part"] = min(found, key=found.__getitem__) if found else None
@@ -174,6 +174,14 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
         row["covered"] = f.alert_in_s is not None and (lo or 0.0) <= remaining <= (hi if hi is not None else np.inf)
         result["paths"][fault] = row
     return result
+
+
+def _forecast(t: np.ndarray, d, fault: str, now: int):
+    """The forecast ``score --json`` gives of the part from windows 0..now (a part the latest window rules out has
+    none: ``training.scoring.degradation_forecast``)."""
+    if d.ruled_out(fault, now):
+        return ruled_out_forecast()
+    return forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
 
 
 def _interval_covers(d, fault: str, truth: np.ndarray) -> float | None:

@@ -158,6 +158,18 @@ def test_forecast_stream_confirms_provisional_values_as_a_files_history_does():
     got, alone = stream.get()["valve_coil"], forecast_alert(t, measured)
     assert got.alert_in_s == pytest.approx(forecast_alert(t, history).alert_in_s, rel=1e-6)
     assert got.alert_in_s == pytest.approx(750.0, rel=0.2) and got.points > alone.points
+    # a window that rules the coil out (another part blamed by the margin: it reads 0): no forecast for it until it
+    # is blamed again; a file's forecast reads the same (Degradation.ruled_out)
+    stream.update(870.0, {"valve_coil": {"value": 0.0, "ci95": [0.0, 0.6], "measured": False}})
+    assert stream.get()["valve_coil"].reason.startswith("ruled out") and stream.get()["valve_coil"].alert_in_s is None
+    stream.update(875.0, {"valve_coil": {"value": 0.5, "ci95": [0.4, 0.6], "measured": True}})
+    assert stream.get()["valve_coil"].alert_in_s is not None
+    from hydrowatch.condition.degradation import Degradation
+    from hydrowatch.plant.faults import FAULTS
+    value = {f: np.array([0.2, 0.3, np.nan, 0.0]) for f in FAULTS}
+    d = Degradation(value, value, value, {f: np.array([True, True, False, f == "load"]) for f in FAULTS},
+                    valid=np.array([True, True, False, True]))
+    assert d.ruled_out("valve_coil") and not d.ruled_out("valve_coil", upto=2) and not d.ruled_out("load")
     # a provisional entry is not published: the health message carries the window's index only
     item = WindowVerdict("f/m", 0.0, HOP, Verdict("healthy", 1.0, {"healthy": 1.0}), None,
                          {"valve_coil": {"value": 0.3, "measured": False, "provisional": True},

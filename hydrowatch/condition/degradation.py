@@ -177,6 +177,13 @@ class Degradation:
         own[valid] = confirmed(own[valid], self.provisional[fault][valid])
         return own
 
+    def ruled_out(self, fault: str, upto: int | None = None) -> bool:
+        """Whether the last valid window (up to ``upto``) rules the part out: a valve-side part another was blamed
+        for by the margin, reading 0 (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`)."""
+        valid = np.flatnonzero(np.ones(self.value[fault].size, dtype=bool) if self.valid is None else self.valid)
+        last = valid[valid <= (valid[-1] if upto is None else upto)] if valid.size else valid
+        return bool(last.size) and not self.measured[fault][last[-1]] and self.value[fault][last[-1]] == 0.0
+
     def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
         with ``measured`` each entry also says whether the value is the part's own estimate (what a forecast of

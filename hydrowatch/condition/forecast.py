@@ -158,6 +158,13 @@ class Forecast:
         return out
 
 
+def ruled_out_forecast() -> Forecast:
+    """No forecast for a valve-side part that the machine's latest window rules out (another part blamed by the
+    margin: it reads 0 there). Its older values were a look-alike's share of another part's wear, and a forecast
+    from them contradicted the index shown (docs/degradation.md, "The forecast")."""
+    return Forecast(None, (None, None), float("nan"), reason="ruled out: the pool blames another part now")
+
+
 def operating_time(t: np.ndarray, max_gap_s: float) -> np.ndarray:
     """Operating time of consecutive windows, s, shape (n,): steps ≤ 0 or > ``max_gap_s`` count as one typical hop.
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition.attribution import confirmed
-from hydrowatch.condition.forecast import Forecast, forecast_alert
+from hydrowatch.condition.forecast import Forecast, forecast_alert, ruled_out_forecast
 from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.faults import FAULTS
@@ -52,6 +52,8 @@ class ForecastStream:
         self._index = Ring(self.capacity, (len(FAULTS),), np.float32)
         self._provisional = Ring(self.capacity, (len(FAULTS),), np.float32)
         """Each part's index where it was blamed but not yet told apart (``"provisional"`` entries), NaN elsewhere."""
+        self._ruled_out: set[str] = set()
+        """Valve-side parts the latest window rules out (another blamed by the margin): no forecast for them."""
         self._seen: set[str] = set()
         """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
         with a finite value in the file)."""
@@ -69,6 +71,8 @@ class ForecastStream:
         (``measured`` absent reads True; a ``provisional`` value waits for a later window to confirm it,
         :func:`~hydrowatch.condition.attribution.confirmed`). Returns nothing."""
         row, waiting = (np.full(len(FAULTS), np.nan, dtype=np.float32) for _ in range(2))
+        self._ruled_out = {f for f, e in degradation.items()
+                           if not e.get("measured", True) and not e.get("provisional", False) and e["value"] == 0.0}
         for j, fault in enumerate(FAULTS):
             entry = degradation.get(fault)
             if entry is None or not np.isfinite(entry["value"]):
@@ -93,5 +97,6 @@ class ForecastStream:
         """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and
         seed of ``score --json``). Changes nothing; ``{}`` before any window."""
         t, index = self.history()
-        return {f: forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s)
+        return {f: ruled_out_forecast() if f in self._ruled_out
+                else forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s)
                 for j, f in enumerate(FAULTS) if f in self._seen}

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition.degradation import Degradation
-from hydrowatch.condition.forecast import forecast_alert
+from hydrowatch.condition.forecast import forecast_alert, ruled_out_forecast
 from hydrowatch.errors import ParameterError
 from hydrowatch.methods.base import check_channels
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
@@ -130,10 +130,12 @@ def degradation_forecast(windows: list[dict[str, Any]], degradation: Degradation
     the recording's windows (``start_s``). Invalid windows have no index; ``unknown`` ones keep theirs (the index
     is a physical estimate whatever the verdict, and an untrained fault wearing is exactly what must be forecast);
     windows where a valve-side look-alike was blamed are left out of that part's history
-    (:meth:`~hydrowatch.condition.degradation.Degradation.history`)."""
+    (:meth:`~hydrowatch.condition.degradation.Degradation.history`), and a valve-side part the last window rules out
+    has none (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`)."""
     t = np.array([w["start_s"] for w in windows])
-    return {f: forecast_alert(t, degradation.history(f)).to_dict() for f in degradation.value
-            if np.isfinite(degradation.value[f]).any()}
+    return {f: (ruled_out_forecast() if degradation.ruled_out(f)
+                else forecast_alert(t, degradation.history(f))).to_dict()
+            for f in degradation.value if np.isfinite(degradation.value[f]).any()}
 
 
 def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:
