@@ -162,7 +162,8 @@ def ruled_out_forecast() -> Forecast:
     """No forecast for a valve-side part that the machine's latest window rules out (another part blamed by the
     margin: it reads 0 there). Its older values were a look-alike's share of another part's wear, and a forecast
     from them contradicted the index shown (docs/degradation.md, "The forecast")."""
-    return Forecast(None, (None, None), float("nan"), reason="ruled out: the pool blames another part now")
+    return Forecast(None, (None, None), float("nan"),
+                    reason="ruled out: another valve-side part explains the latest windows")
 
 
 def operating_time(t: np.ndarray, max_gap_s: float) -> np.ndarray:
