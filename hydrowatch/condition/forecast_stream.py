@@ -95,7 +95,8 @@ class ForecastStream:
 
     def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
         """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and
-        seed of ``score --json``). Changes nothing; ``{}`` before any window."""
+        seed of ``score --json``), or none for a valve-side part the latest window rules out
+        (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`). Changes nothing; ``{}`` before any window."""
         t, index = self.history()
         return {f: ruled_out_forecast() if f in self._ruled_out
                 else forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s)
