@@ -18,10 +18,10 @@ Per fault kind it prints:
 - ``others max``: the largest (signed: false wear, not "better than new") index any *other* component reads on
   that path (worst unit), and the share of windows
   where one reads above 0.15;
-- ``false fcst``: at that moment, paths on which another part forecasts an alert (any time ahead);
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
-  (``None`` forecasts count as wrong and not covered);
+  (``None`` forecasts count as wrong and not covered), ``no fcst`` the paths without one, and ``false fcst`` the paths
+  on which, at that moment, another part forecasts an alert (any time ahead);
 - ``95% holds``: the share of a path's indexed windows whose 95 % interval holds the true index (median and worst
   unit; the interval's honesty, docs/degradation.md "The 95 % interval"), and ``±`` its median half-width (the
   median over paths of each path's median);
