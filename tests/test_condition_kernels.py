@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydrowatch.condition import parity
+from hydrowatch.condition import load_fill, parity
 from hydrowatch.plant import PlantParameters, PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.faults import state_parameters
@@ -87,7 +87,7 @@ def test_speed_from_torque_recovers_the_gearbox_speed():
     out = sim.step(command)
     torque = out["torque"].reshape(-1, 1000)
     true = out["speed"].reshape(-1, 1000)
-    est = parity.speed_from_torque(torque, p)
+    est = load_fill.speed_from_torque(torque, p)
     # After the first 0.5 s (the load time constant JL/BL = 0.25 s forgets the start), in % of full speed.
     error = np.abs(est - true)[:, 100:]
     assert np.max(error) < 0.03 * true.max() and np.percentile(error, 99) < 0.005 * true.max()  # steps: ~1 sample

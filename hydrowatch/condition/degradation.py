@@ -180,9 +180,9 @@ class Degradation:
     def ruled_out(self, fault: str, upto: int | None = None) -> bool:
         """Whether the last valid window (up to ``upto``) rules the part out: a valve-side part another was blamed
         for by the margin, reading 0 (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`)."""
-        valid = np.flatnonzero(np.ones(self.value[fault].size, dtype=bool) if self.valid is None else self.valid)
-        last = valid[valid <= (valid[-1] if upto is None else upto)] if valid.size else valid
-        return bool(last.size) and not self.measured[fault][last[-1]] and self.value[fault][last[-1]] == 0.0
+        rows = np.arange(self.value[fault].size) if self.valid is None else np.flatnonzero(self.valid)
+        rows = rows if upto is None else rows[rows <= upto]
+        return bool(rows.size) and not self.measured[fault][rows[-1]] and self.value[fault][rows[-1]] == 0.0
 
     def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;

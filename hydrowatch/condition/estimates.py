@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
-from hydrowatch.condition import parity
+from hydrowatch.condition import load_fill, parity
 from hydrowatch.condition.attribution import NOMINAL_VALVE
 from hydrowatch.condition.capacity import PUMP_LIMIT, limit_ratio
 from hydrowatch.condition.determinacy import STANDSTILL
@@ -84,7 +84,7 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
     Filling rules (parameters ``fill``, default ``p``; only TL and Ctm enter, :func:`fill_faults`):
     torque from the load relation (Eq. 7) given speed; speed from the motor relation (Eq. 6) given
     flow, or integrated through the load relation given torque only
-    (:func:`~hydrowatch.condition.parity.speed_from_torque`); flow from the motor relation given
+    (:func:`~hydrowatch.condition.load_fill.speed_from_torque`); flow from the motor relation given
     speed. The relations used to fill are not tested. Filling with a health state's own
     parameters (per-state hypotheses, :func:`~hydrowatch.condition.ratios.state_ratios`) keeps a load or motor
     fault visible to the relations left: a nominal fill would hide it.
@@ -102,17 +102,17 @@ def window_signals(windows: np.ndarray, sensors: Sequence[str], p: PlantParamete
         if "flow" in have:  # the motor relation solved for ω, P̂L (Eq. 7) refined by fixed-point iteration
             speed = flow / (p.N * p.Dm)
             for _ in range(FILL_ITERATIONS):
-                pl = parity.load_pressure(speed, torque if "torque" in have else parity.load_torque(speed, q), p,
+                pl = parity.load_pressure(speed, torque if "torque" in have else load_fill.load_torque(speed, q), p,
                                           leak=leak)
                 moving = (flow - q.Ctm * leak * pl) / (p.N * p.Dm)
                 # The leak can take all the flow (a stalled motor) but cannot turn the motor backwards.
                 speed = np.where(flow >= 0.0, np.maximum(moving, 0.0), np.minimum(moving, 0.0))
             relations.discard("motor")
         else:
-            speed = parity.speed_from_torque(torque, q)
+            speed = load_fill.speed_from_torque(torque, q)
             relations.discard("load")
     if "torque" not in have:
-        torque = parity.load_torque(speed, q)
+        torque = load_fill.load_torque(speed, q)
         relations.discard("load")
     pl = parity.load_pressure(speed, torque, p, leak=leak)
     if "flow" not in have:

@@ -179,12 +179,11 @@ class ConditionFeatures(EvidenceRows):
         self.unit_: dict[str, Any] = {}
         self.relief_spread_, self.brake_open_, self.capacity_known_ = 0.0, False, True
         if self.identify:
-            unit = identify_unit(L.check_windows(windows_by_state["healthy"], self.window), p, self.sensors,
-                                 self.viscosity_coefficient)
+            healthy = L.check_windows(windows_by_state["healthy"], self.window)
+            unit = identify_unit(healthy, p, self.sensors, self.viscosity_coefficient)
             p, self.unit_ = unit.parameters, unit.summary()
             self.brake_open_ = "omega_s" in left_to_prior(unit)
-            self.capacity_known_ = capacity_determined(L.check_windows(windows_by_state["healthy"], self.window), p,
-                                                       self.sensors, self.viscosity_coefficient)[0]
+            self.capacity_known_ = capacity_determined(healthy, p, self.sensors, self.viscosity_coefficient)[0]
         self.nominal_ = p
         # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
         # the faults that only show under load tie with healthy (ParityRule)

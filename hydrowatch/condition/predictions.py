@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hydrowatch.channels import M3S_TO_LPM
-from hydrowatch.condition import parity
+from hydrowatch.condition import load_fill, parity
 from hydrowatch.condition.estimates import WindowSignals, window_signals
 from hydrowatch.condition.layout import WIDTH, invalid_reasons
 from hydrowatch.condition.oil import oil_parts
@@ -61,7 +61,7 @@ def relation_predictions(sig: WindowSignals, p: PlantParameters,
             expected[sensor] = parity.valve_flow_prediction(sig.spool, pl, p, None, np.zeros(pl.shape[0]),
                                                             sig.leak) * M3S_TO_LPM
         elif sensor == "torque":
-            expected[sensor] = parity.load_torque(sig.speed, p)
+            expected[sensor] = load_fill.load_torque(sig.speed, p)
         else:
             expected[sensor] = (sig.flow - p.Ctm * sig.leak * pl
                                 - p.Vt / (4.0 * p.beta_e) * parity.derivative(pl)) / (p.N * p.Dm)
