@@ -177,11 +177,12 @@ def run_unit(draw: dict, hours: float, command: str = "noise") -> dict:
 
 
 def _forecast(t: np.ndarray, d, fault: str, now: int):
-    """The forecast ``score --json`` gives of the part from windows 0..now (a part the latest window rules out has
-    none: ``training.scoring.degradation_forecast``)."""
+    """The forecast ``score --json`` gives of the part from windows 0..now, as the machine knew them then (a
+    provisional value a later pool confirms joins only then; a part the latest window rules out has none:
+    ``training.scoring.degradation_forecast``)."""
     if d.ruled_out(fault, now):
         return ruled_out_forecast()
-    return forecast_alert(t[: now + 1], d.history(fault)[: now + 1])
+    return forecast_alert(t[: now + 1], d.history(fault, upto=now))
 
 
 def _interval_covers(d, fault: str, truth: np.ndarray) -> float | None:

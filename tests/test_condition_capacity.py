@@ -12,11 +12,13 @@ from hydrowatch.condition.capacity import (
     CAPACITY_STEP,
     MIN_LIMITED,
     PUMP_LIMIT,
+    PUMP_LIMITED,
     MachineCapacity,
     capacity_error,
     capacity_errors,
     corrected,
     limit_ratio,
+    limited_share,
 )
 from hydrowatch.condition.degradation import DETERMINED_STEP, DegradationStream, degradation_index, window_degradation
 from hydrowatch.condition.estimates import parity_estimates, window_signals
@@ -137,3 +139,18 @@ def test_on_a_simulated_duty_cycle_the_pool_finds_the_capacity_commissioning_mis
     usable = est.curvature["pump_leak"] * DETERMINED_STEP**2 >= est.mse["pump_leak"]
     q = capacity_errors(est.severity["pump_leak"], est.severity[PUMP_LIMIT], usable, pool=60)
     assert abs(q[-1]) <= 0.01
+
+
+def test_the_limited_share_is_the_simulated_share_of_samples_with_the_relief_shut_below_cracking():
+    """Known truth: the simulator's own supply pressure. A duty cycle up to 4.5 V on the nominal unit meets the
+    pump's limit in some windows and not in others; each window's share of samples below the cracking pressure
+    (what lessens its say in which valve-side part wears) is the simulated one."""
+    nominal = PlantParameters()
+    out = _run(nominal, duty_cycle(60.0, (0.5, 4.5), seed=6), seed=7)
+    sig = window_signals(_windows(out), SENSORS, nominal)
+    share = limited_share(sig.spool, sig.load_pressure, nominal, sig.leak)
+    truth = np.mean(out["supply_pressure"] * 1e5 < nominal.Pc, axis=1)
+    assert (truth > 0.5).any() and (truth < 0.05).any()  # both kinds of window
+    np.testing.assert_allclose(share, truth, atol=0.05)
+    est = parity_estimates(sig, nominal)
+    np.testing.assert_array_equal(est.severity[PUMP_LIMITED], share)  # what the estimates carry

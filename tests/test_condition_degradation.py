@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from hydrowatch.condition import ConditionFeatures
-from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed
+from hydrowatch.condition.attribution import LIMITED_SAY, NOMINAL_VALVE, confirmed, say_of
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
     ATTRIBUTION_MARGIN,
     DETERMINED_STEP,
     UNTOLD_LEVEL,
+    Degradation,
     attributed_valve_fault,
     degradation_index,
     features_degradation,
@@ -164,6 +165,41 @@ def test_a_window_between_nominal_and_its_fit_costs_the_pool_at_most_its_nominal
         np.sum(np.where(jumpy < 0.0, np.log(1.0 + 10.0 * (jumpy - line) ** 2), 0.0)))
     # NaN (estimates without the nominal MSE) bounds nothing
     assert pool_misfit(s, m, c, np.full(n, np.nan)) == pytest.approx(unbounded)
+
+
+def test_a_window_with_the_pump_at_its_limit_has_a_smaller_say_in_which_part_wears():
+    """A window's samples at θ0's pump limit count LIMITED_SAY in the pool: there θ0's capacity error (its
+    leakages compensating along commissioning's ridges) is what a look-alike explains (tuning seed 2081, unit 4: a
+    coil at severity 0.05 halved the MSE of windows at the limit on a healthy machine, and took a relief spring's
+    pool from true index 0.06 to 0.29)."""
+    np.testing.assert_allclose(say_of(np.array([0.0, 1.0, 0.5, np.nan])),
+                               [1.0, LIMITED_SAY, 0.5 + 0.5 * LIMITED_SAY, 1.0])
+    rng = np.random.default_rng(5)
+    n = 10
+    s, m, c = rng.uniform(0.0, 0.2, n), rng.uniform(0.5, 1.0, n), rng.uniform(10.0, 100.0, n)
+    say = np.ones(n)
+    say[3] = 0.0
+    other = s.copy(), m.copy(), c.copy()
+    other[0][3], other[1][3], other[2][3] = 0.9, 7.0, 3.0  # whatever window 3 holds
+    assert pool_misfit(s, m, c, say=say) == pytest.approx(pool_misfit(*other, say=say))
+    assert pool_misfit(s, m, c) != pytest.approx(pool_misfit(*other))
+    # a say of 1 everywhere is the plain pool; a half say halves the window's log cost where it does not move the
+    # trend (a window whose fit sits on the trend of the others)
+    assert pool_misfit(s, m, c, say=np.ones(n)) == pytest.approx(pool_misfit(s, m, c))
+    line = np.linspace(0.05, 0.15, n)
+    half = np.ones(n)
+    half[4] = 0.5
+    assert pool_misfit(line, m, c) - pool_misfit(line, m, c, say=half) == pytest.approx(0.5 * np.log(m[4]))
+    # in the attribution: limited windows that favour the coil no longer outvote the others
+    valid = np.ones(n, dtype=bool)
+    limited = np.isin(np.arange(n), [2, 5, 8]).astype(float)
+    severity = {f: line.copy() for f in VALVE_HYPOTHESES}
+    mse = {f: np.full(n, 1.0) for f in VALVE_HYPOTHESES}
+    curvature = {f: np.full(n, 50.0) for f in VALVE_HYPOTHESES}
+    mse["valve_coil"] = np.where(limited > 0, 0.5, 1.2)  # the coil: better where limited, worse elsewhere
+    mse["pump_leak"] = mse["valve_leak"] = np.full(n, 3.0)
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n)[-1] == 2
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n, limited=limited)[-1] == 1
 
 
 def test_the_nominal_valve_mse_is_every_hypothesis_at_severity_0():
@@ -322,6 +358,12 @@ def test_a_provisional_value_is_confirmed_only_by_a_told_window_within_one_pool(
     # never told apart afterwards: nothing confirmed (a look-alike blamed while the pool hesitated)
     np.testing.assert_array_equal(confirmed(np.full(4, np.nan), np.full(4, 0.3), pool=60), np.full(4, np.nan))
     np.testing.assert_array_equal(confirmed(measured, np.full(8, np.nan), pool=3), measured)
+    # as the machine knew it at window 6 (a pool of 60): window 5's confirmation (by window 7) has not come yet
+    n = measured.size
+    d = Degradation({"valve_coil": np.where(np.isfinite(measured), measured, np.nan)}, {}, {},
+                    {"valve_coil": np.isfinite(measured)}, {"valve_coil": provisional}, np.ones(n, dtype=bool))
+    np.testing.assert_array_equal(d.history("valve_coil", upto=6), [0.20, 0.22, 0.25, 0.30, 0.32, np.nan, np.nan])
+    np.testing.assert_array_equal(d.history("valve_coil"), [0.20, 0.22, 0.25, 0.30, 0.32, 0.10, np.nan, 0.40])
 
 
 def test_the_loads_index_does_not_depend_on_the_brakes_shape_near_standstill():

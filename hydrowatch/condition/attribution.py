@@ -34,6 +34,15 @@ worn part blamed on a look-alike by more than the margin stays blamed (seed 2027
 its windows)."""
 
 
+LIMITED_SAY = 0.3
+"""Say, in a pool's misfit, of a window's samples with θ0's pump at its limit (1 for the others; :func:`say_of`).
+There the valve relation's residual is θ0's capacity error (commissioning's leakages compensate each other along its
+ridges) as much as wear, and a look-alike explains it: on tuning seed 2081's unit 4 the coil at severity 0.05
+halved those windows' MSE on a healthy machine, and took a wearing relief spring's pool from true index 0.06 to
+0.29 (11.0 % of the path's windows read the coil above 0.15). Without a say (0) the relief and the coil were not
+told apart until the relief's warning, and its forecast had no history ("too short"). Chosen offline on the stored
+window fits of tuning seeds 2074 and 2081 (16 units, 96 paths; docs/degradation.md): paths with another part above
+0.15 at 1 (before) 9, at 0.5 6, at 0.3 3, at 0.2 3 with one forecast 53 % late."""
 NOMINAL_VALVE = "valve_nominal"
 """Key, in :class:`~hydrowatch.condition.estimates.ParityEstimates`' MSEs, of the valve relation's MSE with every
 valve-side part at nominal (severity 0, the P̂L noise's share taken out as in the fits): the same model for all four
@@ -41,7 +50,7 @@ hypotheses, and what :func:`pool_misfit` bounds a window's cost by between nomin
 
 
 def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
-                nominal: np.ndarray | None = None) -> np.ndarray:
+                nominal: np.ndarray | None = None, say: np.ndarray | None = None) -> np.ndarray:
     """Σ log MSE of one valve-side hypothesis over a pool of consecutive valid windows that share one severity trend.
 
     Each window's free fit gives MSE(s) ≈ MSE_min + c·(s − ŝ)² (:class:`~hydrowatch.condition.estimates.
@@ -62,6 +71,9 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
         ŝ, MSE_min [(L/min)²] and c of L consecutive valid windows in time order (last axis).
     nominal : ndarray, shape (..., L), optional
         The windows' MSE at severity 0 [(L/min)²]; NaN or None: unbounded.
+    say : ndarray, shape (..., L), optional
+        Each window's say in [0, 1] (:func:`say_of`): its log cost and its weight in the trend are scaled by it
+        (None: 1 for every window).
 
     Returns
     -------
@@ -69,7 +81,8 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
     """
     s, m, c = np.asarray(severity, dtype=np.float64), np.maximum(mse, 1e-300), np.maximum(curvature, 0.0)
     x = np.arange(s.shape[-1], dtype=np.float64)
-    w = c / m + 1e-12  # a window that does not determine the part hardly moves the trend
+    weight = np.ones_like(s) if say is None else np.nan_to_num(np.asarray(say, dtype=np.float64), nan=1.0)
+    w = weight * c / m + 1e-12  # a window that does not determine the part hardly moves the trend
     total = w.sum(axis=-1, keepdims=True)
     dx = x - (w * x).sum(axis=-1, keepdims=True) / total
     level = (w * s).sum(axis=-1, keepdims=True) / total
@@ -81,13 +94,21 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
         between = (trend * s >= 0.0) & (np.abs(trend) <= np.abs(s))
         bound = np.maximum(np.nan_to_num(np.asarray(nominal, dtype=np.float64), nan=np.inf), m)
         cost = np.where(between, np.minimum(cost, bound), cost)
-    return np.log(cost).sum(axis=-1)
+    return (weight * np.log(cost)).sum(axis=-1)
+
+
+def say_of(limited: np.ndarray) -> np.ndarray:
+    """Each window's say in the pool (:func:`pool_misfit`), shape as ``limited`` (its share of samples with θ0's
+    pump at its limit, :data:`~hydrowatch.condition.capacity.PUMP_LIMITED`; NaN: none): a sample at the limit
+    counts :data:`LIMITED_SAY`, the rest 1."""
+    share = np.clip(np.nan_to_num(np.asarray(limited, dtype=np.float64), nan=0.0), 0.0, 1.0)
+    return 1.0 - (1.0 - LIMITED_SAY) * share
 
 
 def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str, np.ndarray],
                            curvature: Mapping[str, np.ndarray], valid: np.ndarray,
                            pool: int = ATTRIBUTION_WINDOWS, with_excess: bool = False,
-                           nominal: np.ndarray | None = None) -> Any:
+                           nominal: np.ndarray | None = None, limited: np.ndarray | None = None) -> Any:
     """Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the valve-side part each window blames.
 
     The hypothesis with the smallest :func:`pool_misfit` over the window and the ``pool − 1`` valid windows before
@@ -104,12 +125,15 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
         where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` tests.
     nominal : ndarray, shape (n,), optional
         Each window's valve MSE at nominal (:data:`NOMINAL_VALVE`; :func:`pool_misfit`'s bound).
+    limited : ndarray, shape (n,), optional
+        Each window's share of samples with θ0's pump at its limit (:data:`PUMP_LIMITED`; :func:`say_of`).
     """
     m = int(valid.sum())
     misfit = np.empty((m, len(parity.VALVE_HYPOTHESES)))
     bound = np.full(m, np.nan) if nominal is None else np.asarray(nominal, dtype=np.float64)[valid]
+    say = say_of(np.full(m, np.nan) if limited is None else np.asarray(limited, dtype=np.float64)[valid])
     for j, fault in enumerate(parity.VALVE_HYPOTHESES):
-        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)] + [bound]
+        fit = [np.asarray(a[fault], dtype=np.float64)[valid] for a in (severity, mse, curvature)] + [bound, say]
         for k in range(min(pool - 1, m)):  # the first windows: the pool so far
             misfit[k, j] = pool_misfit(*(a[:k + 1] for a in fit))
         if m >= pool:

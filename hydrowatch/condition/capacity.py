@@ -33,6 +33,10 @@ PUMP_LIMIT = "pump_limit"
 """Key, in :class:`~hydrowatch.condition.estimates.ParityEstimates`' severities, of Pc / P̄s_w: the cracking
 pressure over the mean supply pressure of the window's samples at the pump's limit, under the window's own
 pump_leak fit (:func:`limit_ratio`; NaN where the pump never reaches its limit in the window)."""
+PUMP_LIMITED = "pump_limited"
+"""Key, in :class:`~hydrowatch.condition.estimates.ParityEstimates`' severities, of each window's share of samples
+with θ0's pump at its limit (relief shut, Ps < Pc) with every valve-side part at nominal (:func:`limited_share`):
+what lessens a window's say in which valve-side part wears (:func:`~hydrowatch.condition.attribution.say_of`)."""
 MIN_LIMITED = 20
 """Pool windows that determine pump_leak and meet the pump's limit, fewest for :func:`capacity_error` to answer."""
 MAX_STANDARD_ERROR = 0.03
@@ -65,6 +69,15 @@ def limit_ratio(spool: np.ndarray, pl: np.ndarray, p: PlantParameters, severity:
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(limited, ps, 0.0).sum(axis=1) / count
         return np.where((count > 0) & (mean > 0.0), p.Pc / mean, np.nan)
+
+
+def limited_share(spool: np.ndarray, pl: np.ndarray, p: PlantParameters,
+                  leak: float | np.ndarray = 1.0) -> np.ndarray:
+    """Share of each window's samples with the pump at its limit under ``p`` (the supply pressure integrated with
+    every valve-side part at nominal below the relief's cracking pressure), shape (m,); arguments as
+    :func:`limit_ratio`'s."""
+    ps, _ = supply_under(spool, pl, p, None, np.zeros(spool.shape[0]), leak)
+    return np.asarray(np.mean(ps < p.Pc, axis=1), dtype=np.float64)
 
 
 def capacity_error(severity: np.ndarray, ratio: np.ndarray, usable: np.ndarray) -> float:

@@ -58,12 +58,13 @@ import numpy as np
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
-from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed
+from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, say_of
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
 from hydrowatch.condition.capacity import (
     PUMP_LIMIT,
+    PUMP_LIMITED,
     MachineCapacity,
     capacity_error,
     capacity_errors,
@@ -166,15 +167,17 @@ class Degradation:
     valid: np.ndarray | None = None
     """(n,) bool: the windows the attribution pool counts (valid ones); None: every window."""
 
-    def history(self, fault: str) -> np.ndarray:
-        """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,): what a forecast reads
-        (a look-alike blamed for a while is neither wear nor a part replaced); with the provisional values a later
-        pool confirmed (:func:`~hydrowatch.condition.attribution.confirmed`, over the valid windows)."""
-        own = np.where(self.measured[fault], self.value[fault], np.nan)
+    def history(self, fault: str, upto: int | None = None) -> np.ndarray:
+        """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,), or (upto + 1,) as the
+        machine knew it at window ``upto``: what a forecast reads (a look-alike blamed for a while is neither wear
+        nor a part replaced); with the provisional values a later pool confirmed
+        (:func:`~hydrowatch.condition.attribution.confirmed`, over the valid windows; up to ``upto`` only)."""
+        end = self.value[fault].size if upto is None else upto + 1
+        own = np.where(self.measured[fault][:end], self.value[fault][:end], np.nan)
         if self.provisional is None:
             return own
-        valid = np.ones(own.size, dtype=bool) if self.valid is None else self.valid
-        own[valid] = confirmed(own[valid], self.provisional[fault][valid])
+        valid = np.ones(end, dtype=bool) if self.valid is None else self.valid[:end]
+        own[valid] = confirmed(own[valid], self.provisional[fault][:end][valid])
         return own
 
     def ruled_out(self, fault: str, upto: int | None = None) -> bool:
@@ -247,9 +250,10 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if blamed is None:
         severity, misfit, curvature = ({f: _spread(a[f], valid) for f in parity.VALVE_HYPOTHESES}
                                        for a in (estimates.severity, mse, estimates.curvature))
-        at_nominal = own.mse.get(NOMINAL_VALVE)
+        at_nominal, limited = own.mse.get(NOMINAL_VALVE), own.severity.get(PUMP_LIMITED)
         blamed, excess = (attributed_valve_fault(severity, misfit, curvature, valid, pool, with_excess=True,
-                                                 nominal=None if at_nominal is None else _spread(at_nominal, valid))
+                                                 nominal=None if at_nominal is None else _spread(at_nominal, valid),
+                                                 limited=None if limited is None else _spread(limited, valid))
                           if "valve" in relations and valid.any() else (np.full(n, -1), None))
     contender = (np.zeros((n, len(parity.VALVE_HYPOTHESES)), dtype=bool) if excess is None
                  else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
@@ -362,8 +366,9 @@ class DegradationStream:
         self.features, self.pool = features, pool
         self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
         """Each valid window's ŝ, MSE and c per valve hypothesis."""
-        self._nominal = Ring(pool)
-        """Each valid window's valve MSE at nominal (NaN where the estimates lack it: :func:`pool_misfit`)."""
+        self._nominal = Ring(pool, (2,))
+        """Each valid window's valve MSE at nominal and share of samples at the pump's limit (NaN where the
+        estimates lack them: :func:`pool_misfit`, :func:`say_of`)."""
         self._loads = Ring(pool)
         known = getattr(features, "capacity_known_", True)
         self._capacity = None if known else MachineCapacity()
@@ -379,9 +384,9 @@ class DegradationStream:
         blamed, excess, capacity = np.array([-1]), None, np.zeros(1)
         if "valve" in f.relations_:
             self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
-            self._nominal.add(float(mse.get(NOMINAL_VALVE, np.nan)))
-            ring = np.moveaxis(self._fits.rows(), 0, -1)  # (hypothesis, ŝ / MSE / c, window)
-            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], self._nominal.rows()[None, :])
+            self._nominal.add([mse.get(NOMINAL_VALVE, np.nan), severity.get(PUMP_LIMITED, np.nan)])
+            ring, nominal = np.moveaxis(self._fits.rows(), 0, -1), self._nominal.rows()  # (hypothesis, ŝ/MSE/c, window)
+            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], nominal[None, :, 0], say_of(nominal[None, :, 1]))
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
             if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
                 self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),

@@ -21,7 +21,7 @@ import numpy as np
 from hydrowatch.channels import M3S_TO_LPM
 from hydrowatch.condition import load_fill, parity
 from hydrowatch.condition.attribution import NOMINAL_VALVE
-from hydrowatch.condition.capacity import PUMP_LIMIT, limit_ratio
+from hydrowatch.condition.capacity import PUMP_LIMIT, PUMP_LIMITED, limit_ratio, limited_share
 from hydrowatch.condition.determinacy import STANDSTILL
 from hydrowatch.condition.held import window_noise
 from hydrowatch.condition.layout import CHANNELS, WIDTH
@@ -246,6 +246,7 @@ def parity_estimates(sig: WindowSignals, p: PlantParameters, valve_search: bool 
             severity[fault], mse[fault], curvature[fault] = _refit_poor_fits(sig, p, fault, severity[fault],
                                                                              mse[fault], curvature[fault], best)
         severity[PUMP_LIMIT] = limit_ratio(sig.spool, sig.load_pressure, p, severity["pump_leak"], sig.leak)
+        severity[PUMP_LIMITED] = limited_share(sig.spool, sig.load_pressure, p, sig.leak)  # attribution's say
     return ParityEstimates(severity, mse, curvature)
 
 
