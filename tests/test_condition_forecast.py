@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from hydrowatch.condition.forecast import forecast_alert, operating_time, reset_start
+from hydrowatch.condition.forecast import NEVER, forecast_alert, operating_time, resampled_interval, reset_start
 from hydrowatch.errors import DataError
 
 HOP = 5.0
@@ -129,6 +129,23 @@ def test_already_beyond_the_alert_reads_zero():
     t = np.arange(0.0, 1800.0, HOP)
     f = forecast_alert(t, _noisy(1.1 + 0.1 * t / 1800.0, 6))
     assert f.alert_in_s == 0.0 and f.level > 1.0
+    # a machine sitting at its alert: its resamples are there already (0) or cross later or never
+    flat = forecast_alert(t, _noisy(np.full(t.size, 1.0), 7))
+    assert flat.alert_in_s == 0.0 and flat.ci95[0] == 0.0 and (flat.ci95[1] is None or flat.ci95[1] < 1e7)
+
+
+def test_the_interval_is_two_resamples_crossings_never_a_number_between_crossing_and_never():
+    # 200 resamples: 190 already at the alert, 5 crossing within the hour, 5 never (2.5 %): the 97.5 % point falls
+    # between the last crossing and the first never; interpolated it read 2.5e298 (the demo's machine at its alert)
+    crossings = np.concatenate([np.zeros(190), [600.0, 900.0, 1200.0, 2000.0, 3000.0], np.full(5, np.inf)])
+    assert np.quantile(np.minimum(crossings, NEVER), 0.975) == pytest.approx(2.5e298)  # what interpolation gave
+    assert resampled_interval(crossings) == (0.0, NEVER)  # never: the forecast's ci95 upper end None
+    # 2 never of 200 (1 %): interpolated between the 195th and 196th of the 200 sorted crossings, as before
+    crossings = np.concatenate([np.zeros(190), np.arange(1.0, 9.0) * 100.0, np.full(2, np.inf)])
+    assert resampled_interval(crossings) == pytest.approx((0.0, 502.5))
+    # never at the lower end too (most resamples never cross): the lower end is the last crossing, not between
+    crossings = np.concatenate([[700.0, 800.0, 900.0, 950.0, 1000.0], np.full(195, np.inf)])
+    assert resampled_interval(crossings) == (1000.0, NEVER)
 
 
 def test_forecast_stream_confirms_provisional_values_as_a_files_history_does():

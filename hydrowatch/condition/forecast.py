@@ -273,6 +273,19 @@ def _crossings(alpha: np.ndarray, beta: np.ndarray, gamma: np.ndarray,
     return np.where(alpha >= alert, 0.0, np.nan_to_num(out, nan=np.inf))
 
 
+def resampled_interval(crossings: np.ndarray) -> tuple[float, float]:
+    """2.5 % and 97.5 % of the resamples' crossings, s (inf: never, returned as :data:`NEVER`), interpolated between
+    neighbouring crossings, but the outer one of the two where one of them never crosses: between a crossing and
+    "never" an interpolated quantile is neither (a machine sitting at its alert in ``make demo`` read
+    ``"alert_ci95": [0, 2.5e298]``)."""
+    x = np.minimum(np.asarray(crossings, dtype=np.float64), NEVER)
+    (lo_lower, hi_lower), (lo_higher, hi_higher) = (np.quantile(x, [0.025, 0.975], method=m)
+                                                    for m in ("lower", "higher"))
+    lo, hi = np.quantile(x, [0.025, 0.975])
+    return (float(lo_lower if lo_higher >= NEVER > lo_lower else lo),
+            float(hi_higher if hi_higher >= NEVER > hi_lower else hi))
+
+
 def _averaged_crossing(bases: np.ndarray, gammas: np.ndarray, counts: np.ndarray, y: np.ndarray,
                        weight: np.ndarray | None = None, alert: float = ALERT) -> tuple[float, float, float]:
     """Median, 2.5 % and 97.5 % quantiles of the crossing over every candidate, each weighted by its BIC's
@@ -376,7 +389,7 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
         found[:, b] = _fit(bases, gammas, counts, fitted + residual[picked], np.maximum(weight[picked], 1e-9))[:3]
     rates, crossings = found[1], _crossings(found[0], found[1], found[2], levels)
     rate_h = beta * 3600.0
-    lo, hi = (float(q) for q in np.quantile(np.minimum(crossings, NEVER), [0.025, 0.975]))
+    lo, hi = resampled_interval(crossings)
     point, model_lo, model_hi = _averaged_crossing(bases, gammas, counts, y, weight)
     lo, hi = min(lo, model_lo), max(hi, min(model_hi, NEVER))
     ci = (lo if lo < NEVER else None, hi if hi < NEVER else None)
