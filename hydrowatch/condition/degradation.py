@@ -168,10 +168,8 @@ class Degradation:
     """(n,) bool: the windows the attribution pool counts (valid ones); None: every window."""
 
     def history(self, fault: str, upto: int | None = None) -> np.ndarray:
-        """The fault's index where it is the part's own estimate, NaN elsewhere, shape (n,), or (upto + 1,) as the
-        machine knew it at window ``upto``: what a forecast reads (a look-alike blamed for a while is neither wear
-        nor a part replaced); with the provisional values a later pool confirmed
-        (:func:`~hydrowatch.condition.attribution.confirmed`, over the valid windows; up to ``upto`` only)."""
+        """The part's own index, NaN elsewhere, shape (n,) (or (upto + 1,): as known at window ``upto``), with the
+        provisional values a later pool confirmed (:func:`~.attribution.confirmed`): what a forecast reads."""
         end = self.value[fault].size if upto is None else upto + 1
         own = np.where(self.measured[fault][:end], self.value[fault][:end], np.nan)
         if self.provisional is None:
@@ -366,9 +364,8 @@ class DegradationStream:
         self.features, self.pool = features, pool
         self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
         """Each valid window's ŝ, MSE and c per valve hypothesis."""
-        self._nominal = Ring(pool, (2,))
-        """Each valid window's valve MSE at nominal and share of samples at the pump's limit (NaN where the
-        estimates lack them: :func:`pool_misfit`, :func:`say_of`)."""
+        self._context = Ring(pool, (2,))
+        """Each valid window's valve MSE at nominal and share at the pump's limit (NaN: not in the estimates)."""
         self._loads = Ring(pool)
         known = getattr(features, "capacity_known_", True)
         self._capacity = None if known else MachineCapacity()
@@ -384,9 +381,9 @@ class DegradationStream:
         blamed, excess, capacity = np.array([-1]), None, np.zeros(1)
         if "valve" in f.relations_:
             self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
-            self._nominal.add([mse.get(NOMINAL_VALVE, np.nan), severity.get(PUMP_LIMITED, np.nan)])
-            ring, nominal = np.moveaxis(self._fits.rows(), 0, -1), self._nominal.rows()  # (hypothesis, ŝ/MSE/c, window)
-            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], nominal[None, :, 0], say_of(nominal[None, :, 1]))
+            self._context.add([mse.get(NOMINAL_VALVE, np.nan), severity.get(PUMP_LIMITED, np.nan)])
+            ring, context = np.moveaxis(self._fits.rows(), 0, -1), self._context.rows()  # (hypothesis, ŝ/MSE/c, window)
+            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], context[None, :, 0], say_of(context[None, :, 1]))
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
             if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
                 self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),

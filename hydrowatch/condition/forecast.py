@@ -274,16 +274,12 @@ def _crossings(alpha: np.ndarray, beta: np.ndarray, gamma: np.ndarray,
 
 
 def resampled_interval(crossings: np.ndarray) -> tuple[float, float]:
-    """2.5 % and 97.5 % of the resamples' crossings, s (inf: never, returned as :data:`NEVER`), interpolated between
-    neighbouring crossings, but the outer one of the two where one of them never crosses: between a crossing and
-    "never" an interpolated quantile is neither (a machine sitting at its alert in ``make demo`` read
-    ``"alert_ci95": [0, 2.5e298]``)."""
-    x = np.minimum(np.asarray(crossings, dtype=np.float64), NEVER)
-    (lo_lower, hi_lower), (lo_higher, hi_higher) = (np.quantile(x, [0.025, 0.975], method=m)
-                                                    for m in ("lower", "higher"))
-    lo, hi = np.quantile(x, [0.025, 0.975])
-    return (float(lo_lower if lo_higher >= NEVER > lo_lower else lo),
-            float(hi_higher if hi_higher >= NEVER > hi_lower else hi))
+    """2.5 % and 97.5 % of the resamples' crossings, s (inf: never, as :data:`NEVER`), not interpolated towards
+    "never" (a machine at its alert in ``make demo`` read ``"alert_ci95": [0, 2.5e298]``)."""
+    x = np.minimum(np.asarray(crossings, dtype=np.float64), NEVER)  # order statistics; interpolated in between
+    lower, higher, mid = (np.quantile(x, [0.025, 0.975], method=m) for m in ("lower", "higher", "linear"))
+    straddles = (higher >= NEVER) & (lower < NEVER)
+    return float(lower[0] if straddles[0] else mid[0]), float(higher[1] if straddles[1] else mid[1])
 
 
 def _averaged_crossing(bases: np.ndarray, gammas: np.ndarray, counts: np.ndarray, y: np.ndarray,
