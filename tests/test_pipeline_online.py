@@ -162,11 +162,14 @@ def scorer_round_trip(model: Path, recordings: list, columns: tuple[str, ...], s
                     history.add(key("t", r.state, "sensors"), float(r.t[start]), payload)
                     if (i, start) not in skip:
                         pub.put_payload(key("t", r.state, "sensors"), payload)
+            # the scorer works through what was published at its own pace: wait while it makes progress, and give
+            # up after 30 s without a health message (a fixed 30 s failed on a loaded machine: 26 of 120 windows)
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline and sum(len(v) for v in got.values()) < want:
                 message = health.recv(timeout=0.5)
                 if message is not None:
                     got.setdefault(message.key.machine, []).extend(verdict_rows(message.batch))
+                    deadline = time.monotonic() + 30
             first_kl = kl.recv(timeout=5)
             while forecasts is not None and (message := forecast.recv(timeout=1.0)) is not None:
                 forecasts.append(message)

@@ -48,6 +48,10 @@ def test_search_finds_the_study_orders_on_eq_3_24() -> None:
     (nb, nf of 7-8) and 26 of 60 CPU-s. Measured on a shared 2-core machine: 43 CPU-s for the
     pytest process (60 for the search with one BLAS thread and ``max_order=8``; before
     ``BoxJenkins.fit`` pinned BLAS to one thread, 286 CPU-s the same day, 421 on a quiet day).
+    59 fits; on a slower day (2026-12-02) the search took 232 CPU-s, 73 % of it in full-length
+    filters and column copies, and the test 344 s alone and 556 s beside the rest of the suite;
+    with the start-up's pulse and step responses filtered only until they settle and the
+    Jacobian written in place (pem.py), the same 59 fits and orders in 82 CPU-s, the test 72 s.
     """
     m = STUDY_MODEL_3_24
     rng = np.random.default_rng(0)

@@ -107,3 +107,26 @@ def test_frequency_response_matches_the_model() -> None:
     exact = 0.5 / z / (1 - 0.5 / z)
     assert f[-1] == pytest.approx(100.0)
     assert np.max(np.abs(h - exact) / np.abs(exact)) < 0.1
+
+
+def test_a_settling_filter_equals_the_whole_filter_and_stops_early_only_when_settled() -> None:
+    """Pulse and step responses and a short head of noise through random stable filters (poles up to 0.97): equal
+    to filtering all n samples to 1e-13 of the peak; a pole at 0.9999 is filtered to the end, exactly."""
+    from hydrowatch.sysid.polynomials import filter_settling, filter_signal
+
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for _ in range(60):
+        k = int(rng.integers(1, 5))
+        poles = rng.uniform(0.0, 0.97, k) * np.exp(1j * rng.uniform(0.0, np.pi, k))
+        a = np.real(np.poly(np.concatenate([poles, poles.conj()])))
+        b = rng.standard_normal(int(rng.integers(1, 5)))
+        n = int(rng.integers(20, 20_000))
+        for level, head in ((0.0, np.ones(1)), (1.0, np.ones(0)), (0.0, rng.standard_normal(int(rng.integers(1, 40))))):
+            whole = filter_signal(b, a, np.concatenate([head[:n], np.full(max(n - head.size, 0), level)]))
+            got = filter_settling(b, a, head, n, level)
+            worst = max(worst, float(np.max(np.abs(got - whole)) / np.max(np.abs(whole))))
+    assert worst < 1e-13
+    slow = filter_settling([1.0], [1.0, -0.9999], [1.0], 5000, level=1.0)
+    np.testing.assert_array_equal(slow, filter_signal([1.0], [1.0, -0.9999], np.ones(5000)))
+    assert slow[-1] < 0.5 / 1e-4  # far from its final value 1e4: not settled, so never cut short

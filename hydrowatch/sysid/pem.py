@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 from hydrowatch.log import event, get_logger
 from hydrowatch.sysid.polynomials import (
     delayed_numerator,
+    filter_settling,
     filter_signal,
     is_stable,
     monic,
@@ -150,11 +151,21 @@ def jacobian(
     w_f = filter_signal(monic(d), cf, w)
     eps_c = filter_signal([1.0], monic(c), eps)
     v_c = filter_signal([1.0], monic(c), v)
-    columns = [-_shift(u_f, orders.delay + k) for k in range(1, orders.nb + 1)]
-    columns += [_shift(w_f, k) for k in range(1, orders.nf + 1)]
-    columns += [-_shift(eps_c, k) for k in range(1, orders.nc + 1)]
-    columns += [_shift(v_c, k) for k in range(1, orders.nd + 1)]
-    return np.column_stack(columns) if columns else np.zeros((u.size, 0))
+    jac = np.zeros((u.size, orders.n_parameters), order="F")  # columns contiguous: filled a column at a time
+    i_f, i_c, i_d = orders.nb, orders.nb + orders.nf, orders.nb + orders.nf + orders.nc
+    _add_shifted(jac, 0, -u_f, range(orders.delay + 1, orders.delay + orders.nb + 1))
+    _add_shifted(jac, i_f, w_f, range(1, orders.nf + 1))
+    _add_shifted(jac, i_c, -eps_c, range(1, orders.nc + 1))
+    _add_shifted(jac, i_d, v_c, range(1, orders.nd + 1))
+    return jac
+
+
+def _add_shifted(jac: np.ndarray, first: int, x: np.ndarray, shifts: range) -> None:
+    """Adds q^-k x to column ``first + i`` of ``jac`` for the i-th shift k, in place (no copies of x)."""
+    n = x.size
+    for i, k in enumerate(shifts):
+        if k < n:
+            jac[k:, first + i] += x[: n - k]
 
 
 def _admissible(theta: np.ndarray, orders: Orders) -> bool:
@@ -184,13 +195,12 @@ def start_up_basis(theta: np.ndarray, orders: Orders, n: int) -> tuple[np.ndarra
     _, f, c, d = orders.split(theta)
     n_r = max(orders.nd + max(orders.nf, orders.delay + orders.nb), orders.nf + max(orders.nc, orders.nd))
     n_r = min(n_r, max(n // 4, 1))
-    pulse = np.zeros(n)
-    pulse[0] = 1.0
-    response = filter_signal([1.0], np.convolve(monic(c), monic(f)), pulse)
+    response = filter_settling([1.0], np.convolve(monic(c), monic(f)), [1.0], n)
     alive = np.flatnonzero(np.abs(response) > 1e-12 * np.max(np.abs(response)))
     rows = min(n, int(alive[-1]) + 1 + n_r)
-    transient = np.column_stack([_shift(response[:rows], k) for k in range(n_r)])
-    return transient, filter_signal(monic(d), monic(c), np.ones(n))
+    transient = np.zeros((rows, n_r))
+    _add_shifted(transient, 0, response[:rows], range(n_r))
+    return transient, filter_settling(monic(d), monic(c), [], n, level=1.0)
 
 
 @dataclass
@@ -251,9 +261,7 @@ class _Evaluation:
         if self.start is None:
             return np.zeros_like(self.errors)
         _, f, c, _ = orders.split(self.theta)
-        pulse = np.zeros(self.errors.size)
-        pulse[0] = 1.0
-        return filter_signal(self.coefficients[:-1], np.convolve(monic(c), monic(f)), pulse)
+        return filter_settling(self.coefficients[:-1], np.convolve(monic(c), monic(f)), [1.0], self.errors.size)
 
 
 def _evaluate(theta: np.ndarray, u: np.ndarray, y: np.ndarray, orders: Orders, estimate_start: bool) -> _Evaluation:
@@ -288,18 +296,17 @@ def _jacobian(point: _Evaluation, u: np.ndarray, orders: Orders) -> np.ndarray:
     _, f, c, d = orders.split(point.theta)
     n = u.size
     mu = float(point.coefficients[-1])
-    tau_r = point.start_up(orders)
-    tau_mu = mu * filter_signal(monic(d), monic(c), np.ones(n))
-    tau_r_f = filter_signal([1.0], monic(f), tau_r)
-    tau_c = filter_signal([1.0], monic(c), tau_r + tau_mu)
-    mu_c = mu * filter_signal([1.0], monic(c), np.ones(n))
+    tau_r = point.start_up(orders)  # settles: filters of it need only its head (filter_settling)
+    head = tau_r[: int(np.flatnonzero(tau_r)[-1]) + 1] if np.any(tau_r) else tau_r[:0]
+    tau_r_f = filter_settling([1.0], monic(f), head, n)
+    # 1/C (tau_r + mu D/C 1), the step part as a step response of D/C^2
+    tau_c = filter_settling([1.0], monic(c), head, n) + filter_settling(
+        mu * monic(d), np.convolve(monic(c), monic(c)), [], n, level=1.0)
+    mu_c = filter_settling([mu], monic(c), [], n, level=1.0)
     i_f, i_c, i_d = orders.nb, orders.nb + orders.nf, orders.nb + orders.nf + orders.nc
-    for k in range(1, orders.nf + 1):
-        jac[:, i_f + k - 1] += _shift(tau_r_f, k)
-    for k in range(1, orders.nc + 1):
-        jac[:, i_c + k - 1] += _shift(tau_c, k)
-    for k in range(1, orders.nd + 1):
-        jac[:, i_d + k - 1] -= _shift(mu_c, k)
+    _add_shifted(jac, i_f, tau_r_f, range(1, orders.nf + 1))
+    _add_shifted(jac, i_c, tau_c, range(1, orders.nc + 1))
+    _add_shifted(jac, i_d, -mu_c, range(1, orders.nd + 1))
     return point.start.remove(jac)
 
 

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.signal import lfilter
+from scipy.signal import lfilter, lfilter_zi
 
 __all__ = [
     "cancellations",
     "delayed_numerator",
     "filter_signal",
+    "filter_settling",
     "impulse_response",
     "is_stable",
     "monic",
@@ -53,6 +54,52 @@ def filter_signal(numerator: ArrayLike, denominator: ArrayLike, x: ArrayLike) ->
     ndarray, shape (N,)
     """
     return np.asarray(lfilter(numerator, denominator, x))
+
+
+SETTLED = 1e-14
+"""Relative size (to the output's peak) below which :func:`filter_settling` takes a response as settled."""
+
+
+def filter_settling(numerator: ArrayLike, denominator: ArrayLike, head: ArrayLike, n: int, level: float = 0.0,
+                    block: int = 1024) -> np.ndarray:
+    """The filter from rest on ``head`` followed by ``level`` up to n samples, filtered only until it settles.
+
+    A pulse response (level 0) or a step response (level 1) of a stable filter reaches its final value
+    ``level * numerator(1) / denominator(1)`` geometrically; filtering all n samples costs as much as filtering a
+    measured signal. The input after ``head`` is filtered a block at a time, continuing the filter's state, until a
+    block and the state are within :data:`SETTLED` of the peak from their steady values; the rest is the final
+    value. Equal to :func:`filter_signal` of the whole input to 1e-14 of the peak; an unstable or slow filter is
+    filtered to the end.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    b, a = np.asarray(numerator, dtype=float), np.asarray(denominator, dtype=float)
+    x = np.asarray(head, dtype=float)[:n]
+    out = np.empty(n)
+    order = max(a.size, b.size) - 1
+    state = np.zeros(order)
+    if x.size:
+        out[: x.size], state = lfilter(b, a, x, zi=state) if order else (lfilter(b, a, x), state)
+    final = level * float(np.sum(b) / np.sum(a)) if level else 0.0
+    steady_state = level * lfilter_zi(b, a) if level and order else np.zeros(order)
+    peak = float(np.max(np.abs(out[: x.size]), initial=abs(final)))
+    done = x.size
+    while done < n:
+        start, done = done, min(n, done + block)
+        piece = np.full(done - start, float(level))
+        if order:
+            out[start:done], state = lfilter(b, a, piece, zi=state)
+        else:
+            out[start:done] = lfilter(b, a, piece)
+        peak = max(peak, float(np.max(np.abs(out[start:done]))))
+        limit = SETTLED * max(peak, np.finfo(float).tiny)
+        if np.max(np.abs(out[start:done] - final)) <= limit and \
+                np.max(np.abs(state - steady_state), initial=0.0) <= limit:
+            out[done:] = final
+            break
+    return out
 
 
 def impulse_response(numerator: ArrayLike, denominator: ArrayLike, length: int) -> np.ndarray:
