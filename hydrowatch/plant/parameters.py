@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -165,7 +165,7 @@ class PlantParameters:
 
     def to_dict(self) -> dict[str, float]:
         """Every field as ``{name: value}``, SI units."""
-        return {k: float(v) for k, v in asdict(self).items()}
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}  # flat floats: no deep copy (asdict)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PlantParameters:
