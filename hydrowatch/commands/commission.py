@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 NAME = "commission"
 HELP = "adapt a trained parity model to one machine from >= 5 min of its healthy operation on any working command"
@@ -31,8 +32,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Commission and save; returns 0 (a refusal raises CommissioningError: exit 2 with the reason)."""
-    from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
-    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, RELIEF_SHUT_SHARE
     from hydrowatch.io import read_recording
     from hydrowatch.training import load_bundle, recording_files
     from hydrowatch.training.commissioning import commission_bundle
@@ -62,34 +61,45 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info))
     else:
-        unit = info["unit"]
-        print(f"{args.machine}: commissioned from {fleet.version} on {unit['seconds']:.0f} s "
-              f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
-              f"-> {args.out} ({bundle.version})")
-        if relief_open(unit["supply"], unit["split_disagreement"]):
-            print("  the recording does not determine the relief (its halves disagree): the load states follow each "
-                  "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "
-                  "tell them apart, commission on 5 minutes of filtered noise over the command range (the "
-                  "identification command of `hydrowatch simulate`)")
-        at_limit = unit.get("pump_at_limit_share")
-        if at_limit is not None and at_limit < PUMP_LIMIT_SHARE and "Dp" not in unit["left_to_prior"]:
-            print(f"  the pump was at its limit in {100 * at_limit:.2f} % of the samples: the recording does not "
-                  "determine its capacity (it trades with the relief's setting), and pump_leak levels rest on the "
-                  "identified one; pump_leak has no degradation index until a worn pump's windows at its limit "
-                  "determine it; a few seconds of steps to full stroke show it if the valve can then draw more than "
-                  "the pump delivers (a pump that outdelivers the valve never shows it healthy)")
-        if at_limit is not None and at_limit >= RELIEF_SHUT_SHARE:
-            print(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
-                  "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve coil; "
-                  "commands that keep the valve's flow below the pump's (the relief open) would determine it")
-        if unit["supply"] == "identified" and unit.get("left_to_prior"):
-            kept = ", ".join(unit["left_to_prior"])
-            print(f"  not informed by the recording, kept near the trained unit's values: {kept}")
-            if "Dp" in unit["left_to_prior"]:
-                print("  the pump was never at its limit: its capacity is taken as at most "
-                      f"{1 + CAPACITY_MARGIN:.2f} x what the recording drew from it; for pump_leak levels at higher "
-                      "demand add a few seconds of steps to the top of the command range")
-            if "omega_s" in unit["left_to_prior"]:
-                print("  the recording never came near standstill: the brake's low-speed shape (omega_s) is the "
-                      "trained unit's; a few seconds of commands near 0 V would identify it")
+        print("\n".join(summary_lines(info)))
     return 0
+
+
+def summary_lines(info: dict[str, Any]) -> list[str]:
+    """What ``commission`` says to a person about the commissioning ``info`` (its ``--json`` object), a line each:
+    the unit, and what the recording left undetermined with what to record to determine it."""
+    from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
+    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, RELIEF_SHUT_SHARE
+
+    said: list[str] = []
+    unit = info["unit"]
+    said.append(f"{info['machine']}: commissioned from {info['base_version']} on {unit['seconds']:.0f} s "
+                f"(healthy {100 * unit['healthy_share']:.0f} % of its own windows; supply {unit['supply']}) "
+                f"-> {info['out']} ({info['version']})")
+    if relief_open(unit["supply"], unit["split_disagreement"]):
+        said.append("  the recording does not determine the relief (its halves disagree): the load states follow each "
+                    "window's relief, and a worn relief spring may read as a weak valve coil on this unit; to "
+                    "tell them apart, commission on 5 minutes of filtered noise over the command range (the "
+                    "identification command of `hydrowatch simulate`)")
+    at_limit = unit.get("pump_at_limit_share")
+    if at_limit is not None and at_limit < PUMP_LIMIT_SHARE and "Dp" not in unit["left_to_prior"]:
+        said.append(f"  the pump was at its limit in {100 * at_limit:.2f} % of the samples: the recording does not "
+                    "determine its capacity (it trades with the relief's setting), and pump_leak levels rest on the "
+                    "identified one; pump_leak has no degradation index until a worn pump's windows at its limit "
+                    "determine it; a few seconds of steps to full stroke show it if the valve can then draw more than "
+                    "the pump delivers (a pump that outdelivers the valve never shows it healthy)")
+    if at_limit is not None and at_limit >= RELIEF_SHUT_SHARE:
+        said.append(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
+                    "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve "
+                    "coil; commands that keep the valve's flow below the pump's (the relief open) would determine it")
+    if unit["supply"] == "identified" and unit.get("left_to_prior"):
+        kept = ", ".join(unit["left_to_prior"])
+        said.append(f"  not informed by the recording, kept near the trained unit's values: {kept}")
+        if "Dp" in unit["left_to_prior"]:
+            said.append("  the pump was never at its limit: its capacity is taken as at most "
+                        f"{1 + CAPACITY_MARGIN:.2f} x what the recording drew from it; for pump_leak levels at higher "
+                        "demand add a few seconds of steps to the top of the command range")
+        if "omega_s" in unit["left_to_prior"]:
+            said.append("  the recording never came near standstill: the brake's low-speed shape (omega_s) is the "
+                        "trained unit's; a few seconds of commands near 0 V would identify it")
+    return said
