@@ -111,7 +111,7 @@ def test_frequency_response_matches_the_model() -> None:
 
 def test_a_settling_filter_equals_the_whole_filter_and_stops_early_only_when_settled() -> None:
     """Pulse and step responses and a short head of noise through random stable filters (poles up to 0.97): equal
-    to filtering all n samples to 1e-13 of the peak; a pole at 0.9999 is filtered to the end, exactly."""
+    to filtering all n samples to 1e-13 of the peak; a pole at 0.9999 or at 1 is filtered to the end, exactly."""
     from hydrowatch.sysid.polynomials import filter_settling, filter_signal
 
     rng = np.random.default_rng(7)
@@ -130,3 +130,5 @@ def test_a_settling_filter_equals_the_whole_filter_and_stops_early_only_when_set
     slow = filter_settling([1.0], [1.0, -0.9999], [1.0], 5000, level=1.0)
     np.testing.assert_array_equal(slow, filter_signal([1.0], [1.0, -0.9999], np.ones(5000)))
     assert slow[-1] < 0.5 / 1e-4  # far from its final value 1e4: not settled, so never cut short
+    # an integrator's step response has no final value: a ramp, all of it
+    np.testing.assert_array_equal(filter_settling([1.0], [1.0, -1.0], [], 50, level=1.0), np.arange(1.0, 51.0))

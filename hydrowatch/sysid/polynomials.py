@@ -80,6 +80,8 @@ def filter_settling(numerator: ArrayLike, denominator: ArrayLike, head: ArrayLik
     out = np.empty(n)
     order = max(a.size, b.size) - 1
     state = np.zeros(order)
+    if level and not abs(float(np.sum(a))) > 1e-12 * float(np.sum(np.abs(a))):  # a pole at 1: no final value
+        return filter_signal(b, a, np.concatenate([x, np.full(n - x.size, float(level))]))
     if x.size:
         out[: x.size], state = lfilter(b, a, x, zi=state) if order else (lfilter(b, a, x), state)
     final = level * float(np.sum(b) / np.sum(a)) if level else 0.0
