@@ -8,17 +8,22 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 import hydrowatch.condition.commission as C
 import hydrowatch.condition.holdout as H
+import hydrowatch.condition.ridge as R
+import hydrowatch.condition.supply_bounds as SB
+import hydrowatch.condition.unit as U
 from hydrowatch.cli import main
 from hydrowatch.condition import ConditionModel, supply_bounds
 from hydrowatch.condition.commission import CommissioningError, commission
-from hydrowatch.condition.unit import identify_unit
 from hydrowatch.condition.unit_checks import (
     PUMP_LIMIT_SHARE,
     RELIEF_SHUT_SHARE,
@@ -51,6 +56,61 @@ def windows(states: tuple[str, ...], unit, u: np.ndarray, seed: int) -> dict[str
             for i, s in enumerate(states)}
 
 
+def _encode(value: object, digest: Any) -> None:
+    """Feed ``value`` into ``digest`` (a hashlib object) exactly: a model's features by their saved form, arrays by
+    their bytes, dataclasses, mappings and sequences item by item, anything else by its repr."""
+    if isinstance(value, np.ndarray):
+        digest.update(f"{value.dtype}{value.shape}".encode() + np.ascontiguousarray(value).tobytes())
+    elif hasattr(value, "to_dict"):  # a model's features: everything fitted, as saved
+        _encode(value.to_dict(), digest)
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        digest.update(type(value).__name__.encode())
+        for field in dataclasses.fields(value):
+            _encode(getattr(value, field.name), digest)
+    elif isinstance(value, dict):
+        for k in sorted(value, key=repr):
+            _encode(k, digest)
+            _encode(value[k], digest)
+    elif isinstance(value, (list, tuple)):
+        digest.update(f"{type(value).__name__}{len(value)}".encode())
+        for item in value:
+            _encode(item, digest)
+    else:
+        digest.update(repr(value).encode())
+
+
+def computed_once(function):  # noqa: ANN001, ANN201 - wraps any pure function
+    """``function`` computed once per set of arguments in this module, its result handed out as a copy: for the pure
+    functions several tests (and commissioning inside them) call with the same recordings and arguments. Measured
+    before: 55 of the module's 134 CPU-s of :func:`identify_unit` were repeats."""
+    results: dict[str, object] = {}
+
+    def once(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        digest = hashlib.sha256()
+        _encode((args, kwargs), digest)
+        key = digest.hexdigest()
+        if key not in results:
+            results[key] = function(*args, **kwargs)
+        return copy.deepcopy(results[key])
+
+    return once
+
+
+identify_unit = computed_once(U.identify_unit)
+valve_profile = computed_once(R.valve_profile)
+
+
+@pytest.fixture(autouse=True)
+def fits_once(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Commissioning's own calls (commission, supply_bounds, ridge) go through :func:`computed_once`; a test that
+    replaces one of them with its own still does so after this."""
+    for module in (C, SB):
+        monkeypatch.setattr(module, "identify_unit", identify_unit)
+    for module in (C, R):
+        monkeypatch.setattr(module, "valve_profile", valve_profile)
+    yield
+
+
 @pytest.fixture(scope="module")
 def units() -> list:
     rng = np.random.default_rng(2611)
@@ -64,13 +124,23 @@ def models(units) -> list[ConditionModel]:
             for k, (unit, _) in enumerate(units[:2])]
 
 
-@pytest.fixture(scope="module")
-def duty_healthy(units) -> np.ndarray:
-    """Unit 1's healthy windows on 300 s of a duty cycle 0.5–3.5 V (seed 41), read-only: several tests share them."""
-    unit, _ = units[1]
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
+def healthy_read_only(units, command: np.ndarray, seed: int) -> np.ndarray:
+    """Unit 1's healthy windows under ``command``, read-only: several tests share them."""
+    healthy = windows(("healthy",), units[1][0], command, seed)["healthy"]
     healthy.setflags(write=False)
     return healthy
+
+
+@pytest.fixture(scope="module")
+def duty_healthy(units) -> np.ndarray:
+    """Unit 1's healthy windows on 300 s of a duty cycle 0.5–3.5 V (seed 41)."""
+    return healthy_read_only(units, duty_cycle(300, (0.5, 3.5), seed=41), 41)
+
+
+@pytest.fixture(scope="module")
+def noise_healthy(units) -> np.ndarray:
+    """Unit 1's healthy windows on 300 s of filtered noise 0–4 V (seed 44)."""
+    return healthy_read_only(units, filtered_noise(300, (0, 4), seed=44), 44)
 
 
 @pytest.fixture(scope="module")
@@ -142,13 +212,12 @@ def test_the_held_out_error_prefers_the_units_own_parameters(units) -> None:
         valve_error(healthy, unit, sensors=("flow", "speed"))
 
 
-def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half_better(units, models,
+def test_halves_that_disagree_keep_the_whole_fit_when_it_predicts_the_other_half_better(models, noise_healthy,
                                                                                    monkeypatch) -> None:
     """Filtered noise over the command range determines the supply: with the split test forced to fail, the held-out
     error still chooses the whole fit; the trained unit's supply only where it predicts clearly better
     (:func:`holdout.keeps_supply`)."""
-    unit, _ = units[1]
-    healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
+    healthy = noise_healthy
     f = models[0].features_
     monkeypatch.setattr(C, "SPLIT_AGREEMENT", -1.0)
     choice = C.identify_for_commissioning(f, healthy)
@@ -174,12 +243,11 @@ def test_a_refusal_after_halves_that_disagree_says_what_to_record(models, duty_h
     assert "filtered noise" not in str(refused.value)
 
 
-def test_a_relief_on_its_search_bound_is_not_determined_and_held_at_the_trained_units(units, models,
+def test_a_relief_on_its_search_bound_is_not_determined_and_held_at_the_trained_units(models, noise_healthy,
                                                                                       monkeypatch) -> None:
     """Halves that agree do not make a relief at its search bound an estimate: it is held at the trained unit's value
     and the rest fitted again."""
-    unit, _ = units[1]
-    healthy = windows(("healthy",), unit, filtered_noise(300, (0, 4), seed=44), 44)["healthy"]
+    healthy = noise_healthy
     f = models[0].features_
     choice = C.identify_for_commissioning(f, healthy)
     assert choice.supply == "identified" and choice.whole is not None and C.on_search_limit(choice.whole) == []
@@ -353,16 +421,15 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     assert stale.for_machine("m7") is None  # commissioned from another fleet version: the fleet model judges
 
 
-def test_load_states_follow_the_windows_relief_where_commissioning_left_it_open(units, models) -> None:
+def test_load_states_follow_the_windows_relief_where_commissioning_left_it_open(units, models, duty_healthy,
+                                                                                duty_fit) -> None:
     """A commissioned relief 20 % above the unit's (a duty cycle's ridge left 13–31 % on seed 2037): with the relief
     left open (``relief_spread``) the load warning reads right per window and pooled (measured 1.0, fixed 0.04);
     nothing else moves: healthy windows and a worn relief spring, never trained on (``unknown``), read the same.
     (This unit's recording determines its relief: at 1.2 × its healthy windows read healthy in 21 %; commissioning
     would not choose it. The test isolates the load states' rule.)"""
-    unit, day = units[1]
-    healthy = windows(("healthy",), unit, duty_cycle(300, (0.5, 3.5), seed=41), 41)["healthy"]
-    f = models[0].features_
-    truth = identify_unit(healthy, f.nominal_, f.sensors, f.viscosity_coefficient)
+    _, day = units[1]
+    healthy, truth = duty_healthy, duty_fit  # the duty cycle's windows and their fit from the trained unit
     wrong = dataclasses.replace(truth, parameters=dataclasses.replace(truth.parameters, Pc=1.2 * truth.parameters.Pc))
     test = windows(("healthy", "load_warning", "relief_spring_warning"), day, duty_cycle(120, (0.5, 3.5), seed=45), 45)
     right = {"healthy": "healthy", "load_warning": "load_warning", "relief_spring_warning": "unknown"}
