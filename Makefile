@@ -4,11 +4,13 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck unit bench clean browser
+.PHONY: demo test lint typecheck kernels unit bench clean browser
 
+# Byte-compiled at install (pip's default): where PYTHONDONTWRITEBYTECODE is set, as on these machines, nothing is
+# compiled later, and without it every process compiled mlflow, torch and numpy from source again (the suite 812 ->
+# 1106 s with --no-compile). Python 3.11's own pip (23) installs the project as it is.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
@@ -39,7 +41,14 @@ TEST_WORKERS ?= 2
 unit: $(STAMP) browser
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
-test: lint typecheck unit
+# numba's kernels compiled into their cache (tests/compile_kernels.py says why)
+kernels: $(STAMP)
+	$(BIN)/python tests/compile_kernels.py
+
+# mypy takes one core for about a minute: the kernels compile, and Chromium installs, beside it
+test: lint
+	$(MAKE) --no-print-directory -j3 typecheck kernels browser
+	$(MAKE) --no-print-directory unit
 
 bench: $(STAMP) browser
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
