@@ -5,7 +5,7 @@ discriminant's SVD (~1000 x ~300) took 1-6 s instead of 0.03-0.08 s, and the gap
 starved (``test_unknown_physics_is_reported_unidentified_with_a_correction`` 33 s → 17 s). The benchmarks pin BLAS
 the same way (``threadpool_limits(1)``); what the tests assert does not depend on the thread count.
 
-``make test`` runs the suite on two pytest-xdist workers (``-n 2 --dist loadfile``): each module stays on one worker
+``make test`` runs the suite on three pytest-xdist workers (``-n 3 --dist loadfile``): each module stays on one worker
 (its module-scoped models and recordings are built once), and the modules in :data:`SERVICE_MODULES` share one
 worker, so that at most one test at a time starts a fleet of service processes, servers or a browser and waits for
 their messages against a deadline. Plain ``pytest`` runs everything in one process, as before.
