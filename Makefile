@@ -48,10 +48,11 @@ unit: $(STAMP) browser
 kernels: $(STAMP)
 	$(BIN)/python tests/compile_kernels.py
 
-# mypy takes one core for about a minute: the kernels compile, and Chromium installs, beside it
+# The kernels compile while Chromium installs; then mypy (one core, about a minute) runs beside the suite, whose
+# service worker leaves CPU idle (the three-worker suite used 1.76 of the 2 cores).
 test: lint
-	$(MAKE) --no-print-directory -j3 typecheck kernels browser
-	$(MAKE) --no-print-directory unit
+	$(MAKE) --no-print-directory -j2 kernels browser
+	$(MAKE) --no-print-directory -j2 typecheck unit
 
 bench: $(STAMP) browser
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
