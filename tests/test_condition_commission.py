@@ -68,6 +68,7 @@ def _encode(value: object, digest: Any) -> None:
         for field in dataclasses.fields(value):
             _encode(getattr(value, field.name), digest)
     elif isinstance(value, dict):
+        digest.update(f"dict{len(value)}".encode())  # its size, as for sequences: nested mappings stay unambiguous
         for k in sorted(value, key=repr):
             _encode(k, digest)
             _encode(value[k], digest)
@@ -79,13 +80,13 @@ def _encode(value: object, digest: Any) -> None:
         digest.update(repr(value).encode())
 
 
-def computed_once(function):  # noqa: ANN001, ANN201 - wraps any pure function
+def computed_once(function):
     """``function`` computed once per set of arguments in this module, its result handed out as a copy: for the pure
     functions several tests (and commissioning inside them) call with the same recordings and arguments. Measured
     before: 55 of the module's 134 CPU-s of :func:`identify_unit` were repeats."""
     results: dict[str, object] = {}
 
-    def once(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def once(*args, **kwargs):
         digest = hashlib.sha256()
         _encode((args, kwargs), digest)
         key = digest.hexdigest()
