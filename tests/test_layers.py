@@ -4,6 +4,7 @@ no cycle between hydrowatch's subpackages, shared types and constants defined on
 from __future__ import annotations
 
 import ast
+import functools
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -31,6 +32,12 @@ def _modules() -> dict[str, Path]:
     return out
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """``path`` parsed, once per session (several tests walk every module)."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _is_type_checking(test: ast.expr) -> bool:
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
@@ -55,7 +62,7 @@ def _graph() -> dict[str, set[str]]:
     graph = {}
     for name, path in modules.items():
         targets = set()
-        for imported in _imports(ast.parse(path.read_text(encoding="utf-8"))):
+        for imported in _imports(_tree(path)):
             while imported and imported not in modules:
                 imported = imported.rpartition(".")[0]
             if imported and imported != name:
@@ -134,7 +141,7 @@ def test_the_cycle_finder_finds_a_cycle_and_skips_type_only_imports() -> None:
 def _definitions(pattern: type[ast.AST], name: str) -> list[str]:
     found = []
     for module, path in _modules().items():
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, pattern) and getattr(node, "name", None) == name:
                 found.append(module)
             if isinstance(node, ast.Assign) and pattern is ast.Assign and any(
