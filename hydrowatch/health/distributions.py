@@ -13,8 +13,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.mixture import GaussianMixture
 
 from hydrowatch.errors import DataError, NotFittedError, ParameterError
 
@@ -93,6 +91,9 @@ def fit_mixture(errors: np.ndarray, n_components: int = 3, *, random_state: int 
     The errors are standardised before EM (so the variance floor ``reg_covar=1e-6`` is relative to
     the errors' variance, whatever their unit) and the components are returned sorted by mean.
     """
+    from sklearn.exceptions import ConvergenceWarning  # here, not at import: scikit-learn takes ~1.3 s to import, and
+    from sklearn.mixture import GaussianMixture  # judging (the parity scorer, Mixture's densities) needs none of it
+
     x = _check_errors(errors, "prediction errors")
     if n_components < 1 or n_components > x.shape[0] // 2:
         raise ParameterError(
