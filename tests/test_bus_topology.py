@@ -71,8 +71,10 @@ def test_router_topology_registers_follows_and_judges_every_machine(hosts: str, 
     if hosts == "loopback" and not NO_NAMESPACES and not BOTH:
         pytest.skip("the namespaces variant ran the same topology (HYDROWATCH_TOPOLOGY_BOTH=1 runs this one too)")
     # 6 machines: shard 0 gets m004 and m005, shard 1 the others (CRC-32); the trainer retrains every 5 s on what
-    # the recorders closed (every 8 s, 80 simulated s per machine at speed 10), so that the alias moves soon
-    settings = TopologySettings(machines=6, speed=10.0, rotate_s=8.0, retrain=5.0, follow_s=1.0,
+    # the recorders closed (every 16 s, 80 simulated s per machine at speed 5), so that the alias moves soon. At speed
+    # 10 with files every 8 s (before 2026-12-03) the test took 116 s and 163 CPU-s alone, at 5 72-78 s and 94-97:
+    # the streams' CPU slowed the MLflow server's restart (27 s against 14)
+    settings = TopologySettings(machines=6, speed=5.0, rotate_s=16.0, retrain=5.0, follow_s=1.0,
                                 namespaces=hosts == "namespaces", postgres=NO_POSTGRES is None)
     began = time.monotonic()
     with Topology(tmp_path, settings) as topology:
