@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck kernels unit bench clean browser
+.PHONY: demo test lint typecheck kernels unit suite bench clean browser
 
 # Installed by uv where pip is told of a folder of wheels (PIP_FIND_LINKS: torch's CPU build lies there; uv reads no
 # pip configuration, and without that folder torch would come as a CUDA build of several GB), else by pip. The same
@@ -47,21 +47,25 @@ browser:
 # 693 s on three; against a two-worker run of the code before, the service tests 600 -> 664 test-s and the rest
 # 976 -> 1312 (they share the cores): the service worker is now the longest.
 TEST_WORKERS ?= 3
+PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 unit: $(STAMP) browser
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
+	$(PYTEST)
 
 # numba's kernels compiled into their cache (tests/compile_kernels.py says why)
 kernels: $(STAMP)
 	$(BIN)/python tests/compile_kernels.py
 
-# Chromium installs (apt-get: mostly waiting on the network) while the venv installs, then the kernels compile beside
-# mypy (one core each, ~45 and ~60 s); then ruff, then the suite, which has both cores to itself (it is CPU-bound:
-# its processes used 1.9 of the 2 cores on three workers, and mypy beside it stretched it by half of mypy's time).
+# make test: Chromium installs (apt-get: mostly waiting on the network) while the venv installs; then the kernels
+# (one core, ~45 s), ruff and mypy (one core, 60-90 s cold) start together; the suite starts once the kernels are
+# compiled and ruff passed, mypy going on beside it. The suite is CPU-bound (its processes used 1.9 of the 2 cores on
+# three workers): measured in fresh clones here, mypy beside the kernels alone left a core idle after them (set-up
+# 103 -> 146 s, the suite not shorter by as much).
+suite: kernels lint browser
+	$(PYTEST)
+
 test:
-	$(MAKE) --no-print-directory -j3 browser kernels typecheck
-	$(MAKE) --no-print-directory lint
-	$(MAKE) --no-print-directory unit
+	$(MAKE) --no-print-directory -j4 typecheck suite
 
 bench: $(STAMP) browser
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
