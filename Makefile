@@ -6,13 +6,13 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: demo test lint typecheck kernels unit suite bench clean browser
 
-# Installed by uv where pip is told of a folder of wheels (PIP_FIND_LINKS: torch's CPU build lies there; uv reads no
-# pip configuration, and without that folder torch would come as a CUDA build of several GB), else by pip. The same
-# packages at the same versions either way (pip freeze identical); a fresh venv here in 56 s by uv, cache cold, and
-# in 182 s by pip (2026-12-03). Byte-compiled at install either way: where PYTHONDONTWRITEBYTECODE is set, as on
-# these machines, nothing is compiled later, and without it every process compiled mlflow, torch and numpy from
-# source again (the suite 812 -> 1106 s with pip's --no-compile).
-FIND_LINKS ?= $(PIP_FIND_LINKS)
+# Installed by uv where pip is told of a folder of wheels (PIP_FIND_LINKS or pip's find-links: torch's CPU build lies
+# there; uv reads no pip configuration, and without that folder torch would come as a CUDA build of several GB), else
+# by pip. The same packages at the same versions either way (pip freeze identical); a fresh venv here in 56 s by uv,
+# cache cold, and in 182 s by pip (2026-12-03). Byte-compiled at install either way: where PYTHONDONTWRITEBYTECODE is
+# set, as on these machines, nothing is compiled later, and without it every process compiled mlflow, torch and numpy
+# from source again (the suite 812 -> 1106 s with pip's --no-compile).
+FIND_LINKS ?= $(or $(PIP_FIND_LINKS),$(shell $(PYTHON) -m pip config get global.find-links 2>/dev/null))
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
