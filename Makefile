@@ -12,11 +12,13 @@ STAMP  := $(VENV)/.installed
 # cache cold, and in 182 s by pip (2026-12-03). Byte-compiled at install either way: where PYTHONDONTWRITEBYTECODE is
 # set, as on these machines, nothing is compiled later, and without it every process compiled mlflow, torch and numpy
 # from source again (the suite 812 -> 1106 s with pip's --no-compile).
+# uv pinned: every CI run installs with the one measured
+UV := uv==0.13.9
 FIND_LINKS ?= $(or $(PIP_FIND_LINKS),$(shell $(PYTHON) -m pip config get global.find-links 2>/dev/null))
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	if [ -n "$(FIND_LINKS)" ] && $(BIN)/python -m pip install -q uv && \
+	if [ -n "$(FIND_LINKS)" ] && $(BIN)/python -m pip install -q $(UV) && \
 	   $(BIN)/uv pip install -q --python $(BIN)/python $(foreach f,$(FIND_LINKS),--find-links $(f)) --compile-bytecode \
 	     -e ".[dev]"; then :; else $(BIN)/python -m pip install -q -e ".[dev]"; fi
 	touch $(STAMP)

@@ -3,7 +3,7 @@
 On a fresh checkout the first test of each pytest-xdist worker, and every service process started before the cache
 exists, would compile them itself: the plant's RK4 kernel and the parity relations' supply kernels, ~50 s, on both
 workers at once at the start of ``make test`` (measured: this script 45–50 s cold). ``make test`` runs it beside
-mypy (while Chromium installs), before the suite. A small real workload, so that the kernels are compiled
+ruff and mypy, before the suite. A small real workload, so that the kernels are compiled
 for the types the tests use: the plant (simulation, its linear modes), a parity model trained and judging its
 training recordings (the severity searches), and a unit identified from a duty cycle's healthy windows (its holds:
 the supply noise variance). The few it leaves (the plant's kink search, two second signatures) compile in the tests.
