@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from hydrowatch.condition import ConditionFeatures
-from hydrowatch.condition.attribution import LIMITED_SAY, NOMINAL_VALVE, confirmed, say_of
+from hydrowatch.condition.attribution import (
+    EARLY_LEVEL,
+    EARLY_MARGIN,
+    LIMITED_SAY,
+    NOMINAL_VALVE,
+    confirmed,
+    contenders,
+    say_of,
+)
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
     ATTRIBUTION_MARGIN,
@@ -331,12 +339,15 @@ def test_a_worn_valve_side_part_the_pool_cannot_tell_from_a_look_alike_has_no_in
     assert np.isnan(d.value["relief_spring"]).all() and not d.measured["relief_spring"].any()
     assert np.isnan(d.value["valve_coil"]).all()  # nor the look-alike: it may be the worn part
     assert (d.value["pump_leak"] == 0.0).all()  # ruled out by the pool: no wear
-    # a clear winner (the coil's MSE 2x the relief's in every window) keeps its index
+    # a clear winner (the coil's MSE 2x the relief's in every window) keeps its index, once its wear is past the early
+    # level (relief severity 0.15: index 0.34)
+    severity = {f: np.full(n, 0.15 if f in ("relief_spring", "valve_coil") else 0.0) for f in FAULTS}
     mses["valve_coil"] = np.full(n, 2 * mse)
     d = window_degradation(ParityEstimates(severity, mses, fits.curvature), valid, nominal, 124,
                            ("load", "motor", "valve"), pool=n)
     # (log 2 per window: the pool of the first 4 windows is still within the margin)
-    want = float(degradation_index("relief_spring", 0.1, nominal))
+    want = float(degradation_index("relief_spring", 0.15, nominal))
+    assert want > EARLY_LEVEL
     assert np.isnan(d.value["relief_spring"][:4]).all() and d.value["relief_spring"][4:] == pytest.approx(
         np.full(n - 4, want))
     # the first 4 windows' relief was blamed, not told apart: no index, but a provisional value that the pool which
@@ -347,6 +358,46 @@ def test_a_worn_valve_side_part_the_pool_cannot_tell_from_a_look_alike_has_no_in
     assert d.window(0) == {f: d.window(0)[f] for f in ("load", "motor_leak", "pump_leak", "valve_leak")}
     assert d.window(0, measured=True)["relief_spring"] == {"value": round(want, 4), "measured": False,
                                                            "provisional": True}
+
+
+def test_an_early_wear_is_told_apart_only_by_the_early_margin():
+    # the relief at severity 0.1 (index 0.22, below the early level) explains 14 windows 2x better than the coil
+    # (log 2 per window), which explains them at severity 0.1 too: 3 nats after 5 windows, 7 only after 11
+    n, mse = 14, 1e-4
+    severity = {f: np.full(n, 0.1 if f in ("relief_spring", "valve_coil") else 0.0) for f in FAULTS}
+    mses = {"load": np.full(n, mse), "motor": np.full(n, mse), **{f: np.full(n, 5 * mse) for f in VALVE_HYPOTHESES}}
+    mses["relief_spring"], mses["valve_coil"] = np.full(n, mse), np.full(n, 2 * mse)
+    fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
+    nominal, valid = PlantParameters(), np.ones(n, dtype=bool)
+    want = float(degradation_index("relief_spring", 0.1, nominal))
+    assert UNTOLD_LEVEL < want < EARLY_LEVEL and 10 * np.log(2) < EARLY_MARGIN < 11 * np.log(2)
+    d = window_degradation(fits, valid, nominal, 124, ("load", "motor", "valve"), pool=n)
+    assert np.isnan(d.value["relief_spring"][:10]).all() and np.isnan(d.value["valve_coil"][:10]).all()
+    assert d.value["relief_spring"][10:] == pytest.approx(np.full(n - 10, want))
+    assert (d.value["valve_coil"][10:] == 0.0).all()  # ruled out once told apart
+    assert d.history("relief_spring") == pytest.approx(np.full(n, want))  # the pool of window 10 confirms the rest
+    # the level is the pool's median, not the window's own: one window whose relief fit spikes past the early level
+    # (severity 0.2, index 0.46; a flat fit, c 0.02, so the pool's relief still leads by 7 log 2 − 1.1 > 3 there) in
+    # a pool still below it is not told by the lower margin
+    spike = {f: a.copy() for f, a in severity.items()}
+    spike["relief_spring"][6] = 0.2
+    flat = {f: a.copy() for f, a in fits.curvature.items()}
+    flat["relief_spring"][6] = 0.02
+    d = window_degradation(ParityEstimates(spike, mses, flat), valid, nominal, 124, ("load", "motor", "valve"), pool=n)
+    gap = attributed_valve_fault(*({f: a[f] for f in VALVE_HYPOTHESES} for a in (spike, mses, flat)), valid, pool=n,
+                                 with_excess=True)[1][6, VALVE_HYPOTHESES.index("valve_coil")]
+    assert ATTRIBUTION_MARGIN < gap < EARLY_MARGIN
+    assert np.isnan(d.value["relief_spring"][6]) and np.isnan(d.value["valve_coil"][6])
+    # the same pools told apart by the lower margin where the wear is past the early level (the median above it)
+    late = {f: np.where(severity[f] > 0, 0.15, 0.0) for f in FAULTS}
+    d = window_degradation(ParityEstimates(late, mses, fits.curvature), valid, nominal, 124,
+                           ("load", "motor", "valve"), pool=n)
+    assert np.isnan(d.value["relief_spring"][:4]).all() and np.isfinite(d.value["relief_spring"][4:]).all()
+    # the margins themselves (attribution.contenders): the runner-up 5 nats behind is a contender only early
+    excess = np.array([[0.0, 5.0, 20.0, 20.0]] * 2)
+    np.testing.assert_array_equal(contenders(excess, np.array([0.2, 0.3])),
+                                  [[True, True, False, False], [True, False, False, False]])
+    assert not contenders(None, np.zeros(2)).any()
 
 
 def test_a_provisional_value_is_confirmed_only_by_a_told_window_within_one_pool():

@@ -9,6 +9,7 @@ look-alike needs a severity that moves with the command (docs/degradation.md).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -33,6 +34,22 @@ wrong part. Where the worn part lost its pool on the tuning units (seeds 7 and 2
 worn part blamed on a look-alike by more than the margin stays blamed (seed 2027, unit 4: a relief spring, 9 % of
 its windows)."""
 
+EARLY_MARGIN = 7.0
+"""Pool misfit (nats) by which the blamed valve-side part must beat the runner-up while its wear is early (its index
+at :func:`pool_median` below :data:`EARLY_LEVEL`). On tuning seeds 2086–2089 (32 units, 192 paths) the windows whose
+pool told a wrong part reading above 0.15 told it by 3.0–6.2 (56 windows, 8 paths), those reading 0.1 or more by
+3.1–7.6 (5–95 %), the right part by 7.5–292 (5–95 %). At 7, 1 of those 8 paths kept a wrong window (beyond the
+alert, not early wear), every forecast the same; windows of a wearing relief spring or coil with a true index of
+0.1–0.5 have an index less often (median path 41–54 % / 59–64 % instead of 55–79 % / 80–85 %). A flat margin of 6
+lost three relief forecasts (docs/degradation.md, "Early wear is told apart only by a wider margin")."""
+
+EARLY_LEVEL = 0.25
+"""Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
+runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
+by about as much as θ0's own commissioning error does, and the misfit gap that error makes between look-alikes is no
+evidence: on tuning seeds 2086–2089 every window that read a wrong part above 0.15 had the blamed part's pool below
+0.25 but one, beyond the alert. The pool's median, not the window's own index: single windows whose fit spiked to
+0.30–0.46 in a pool at 0.08 escaped a window-level rule (2088 unit 7)."""
 
 LIMITED_SAY = 0.3
 """Say, in a pool's misfit, of a window's samples with θ0's pump at its limit (1 for the others; :func:`say_of`).
@@ -97,6 +114,34 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
     return (weight * np.log(cost)).sum(axis=-1)
 
 
+def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:
+    """Median of each valid window's severity and the ``pool − 1`` valid windows before it (fewer at the start),
+    shape (m,): a hypothesis's wear so far as its pool sees it, robust to one window's spike."""
+    s = np.asarray(severity, dtype=np.float64)
+    out = np.full(s.size, np.nan)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN pool: NaN
+        for k in range(min(pool - 1, s.size)):
+            out[k] = np.nanmedian(s[:k + 1])
+        if s.size >= pool:
+            out[pool - 1:] = np.nanmedian(sliding_window_view(s, pool), axis=-1)
+    return out
+
+
+def contenders(excess: np.ndarray | None, level: np.ndarray) -> np.ndarray:
+    """Which valve-side parts each window's pool cannot rule out, shape (n, 4): those whose pool misfit is within
+    the margin of the blamed part's (``excess`` below it; the blamed part itself included). The margin is
+    :data:`EARLY_MARGIN` where the blamed part's ``level`` (its index at :func:`pool_median`, shape (n,); inf or
+    NaN: none) is below :data:`EARLY_LEVEL`, else :data:`ATTRIBUTION_MARGIN`; no ``excess``: none (every window
+    told apart)."""
+    lv = np.asarray(level, dtype=np.float64)
+    if excess is None:
+        return np.zeros((lv.size, len(parity.VALVE_HYPOTHESES)), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        margin = np.where(lv < EARLY_LEVEL, EARLY_MARGIN, ATTRIBUTION_MARGIN)
+    return np.asarray(excess) < margin[:, None]
+
+
 def say_of(limited: np.ndarray) -> np.ndarray:
     """Each window's say in the pool (:func:`pool_misfit`), shape as ``limited`` (its share of samples with θ0's
     pump at its limit, :data:`~hydrowatch.condition.capacity.PUMP_LIMITED`; NaN: none): a sample at the limit
@@ -122,7 +167,8 @@ def attributed_valve_fault(severity: Mapping[str, np.ndarray], mse: Mapping[str,
     pool : int, default :data:`ATTRIBUTION_WINDOWS`
     with_excess : bool, default False
         Also return each hypothesis's pool misfit minus the best's, shape (n, 4) (0 for the blamed part, inf
-        where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` tests.
+        where invalid): ``(blamed, excess)``; the runner-up's excess is what :data:`ATTRIBUTION_MARGIN` (and
+        :data:`EARLY_MARGIN` while the wear is early) tests.
     nominal : ndarray, shape (n,), optional
         Each window's valve MSE at nominal (:data:`NOMINAL_VALVE`; :func:`pool_misfit`'s bound).
     limited : ndarray, shape (n,), optional

@@ -58,7 +58,7 @@ import numpy as np
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
-from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, say_of
+from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, contenders, pool_median, say_of
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
@@ -206,7 +206,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
                        relations: Sequence[str], pool: int = ATTRIBUTION_WINDOWS,
                        blamed: np.ndarray | None = None, excess: np.ndarray | None = None,
                        brake: np.ndarray | None = None, capacity: np.ndarray | None = None,
-                       capacity_known: bool = True) -> Degradation:
+                       capacity_known: bool = True,
+                       pool_severity: Mapping[str, np.ndarray] | None = None) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -239,6 +240,9 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     capacity_known : bool, default True
         Whether θ0's capacity is determined (``ConditionFeatures.capacity_known_``): q̂ = 0 throughout; else (and
         ``capacity`` None) from the history.
+    pool_severity : mapping of valve hypothesis to ndarray, shape (m,), optional
+        Each valve hypothesis's median free-fit severity over the window's pool (None: from the estimates with
+        ``pool``); the blamed part's index there chooses the margin (:func:`~.attribution.contenders`).
     """
     n = valid.size
     value, low, high, provisional = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(4))
@@ -253,9 +257,6 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
                                                  nominal=None if at_nominal is None else _spread(at_nominal, valid),
                                                  limited=None if limited is None else _spread(limited, valid))
                           if "valve" in relations and valid.any() else (np.full(n, -1), None))
-    contender = (np.zeros((n, len(parity.VALVE_HYPOTHESES)), dtype=bool) if excess is None
-                 else np.asarray(excess) < ATTRIBUTION_MARGIN)  # parts the pool cannot rule out
-    untold = contender.sum(axis=1) > 1
     if brake is None:
         brake = (brake_factors(own.severity["load"], pool) if "load" in relations
                  else np.ones(int(valid.sum())))
@@ -263,6 +264,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if capacity is None:
         capacity = (np.zeros(ratio.size) if capacity_known or "valve" not in relations
                     else capacity_errors(own.severity["pump_leak"], ratio, _determines(own, "pump_leak"), pool))
+    read = {}  # fault → index, low, high, determined of its own fit per valid window (+ valve: at the pool's median)
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
@@ -275,8 +277,18 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
             determined &= np.isfinite(q)
             q = np.nan_to_num(q)
             stack = corrected(stack, ratio, q)
-        v, lo, hi = _indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
-        lo, hi = widened(v, lo, hi)
+        if fault in parity.VALVE_HYPOTHESES:  # and the index at the pool's median severity (its wear so far)
+            med = pool_median(s, pool) if pool_severity is None else np.asarray(pool_severity[fault], dtype=float)
+            stack = np.concatenate([stack, corrected(med[None], ratio, q) if fault == "pump_leak" else med[None]])
+        v, lo, hi, *at_pool = _indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
+        read[fault] = (v, *widened(v, lo, hi), determined, *(at_pool or [v]))
+    level = np.full(n, np.inf)  # the blamed part's index at its pool's median severity
+    for j, fault in enumerate(parity.VALVE_HYPOTHESES):
+        if fault in read and excess is not None:
+            level = np.where(blamed == j, _spread(read[fault][-1], valid), level)
+    contender = contenders(excess, level)
+    untold = contender.sum(axis=1) > 1
+    for fault, (v, lo, hi, determined, *_) in read.items():
         if fault in parity.VALVE_HYPOTHESES:
             j = parity.VALVE_HYPOTHESES.index(fault)
             mine = blamed[valid] == j
@@ -378,13 +390,14 @@ class DegradationStream:
         :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
         only (``measured``: :meth:`Degradation.window`)."""
         f = self.features
-        blamed, excess, capacity = np.array([-1]), None, np.zeros(1)
+        blamed, excess, capacity, medians = np.array([-1]), None, np.zeros(1), None
         if "valve" in f.relations_:
             self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
             self._context.add([mse.get(NOMINAL_VALVE, np.nan), severity.get(PUMP_LIMITED, np.nan)])
             ring, context = np.moveaxis(self._fits.rows(), 0, -1), self._context.rows()  # (hypothesis, ŝ/MSE/c, window)
             misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], context[None, :, 0], say_of(context[None, :, 1]))
             blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
+            medians = {h: np.array([np.nanmedian(ring[j, 0])]) for j, h in enumerate(parity.VALVE_HYPOTHESES)}
             if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
                 self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),
                                   float(curvature["pump_leak"] * DETERMINED_STEP**2 >= mse["pump_leak"])])
@@ -396,5 +409,6 @@ class DegradationStream:
             brake = np.array([brake_factor(self._loads.rows())])  # the ring holds the pool's last windows
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed, excess, brake, capacity)
+                                   f.relations_, self.pool, blamed, excess, brake, capacity,
+                                   pool_severity=medians)
         return found.window(0, measured=True)
