@@ -7,7 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from hydrowatch.condition.forecast import NEVER, forecast_alert, operating_time, resampled_interval, reset_start
+from hydrowatch.condition.forecast import (
+    NEVER,
+    _binned,
+    forecast_alert,
+    operating_time,
+    resampled_interval,
+    reset_start,
+)
 from hydrowatch.errors import DataError
 
 HOP = 5.0
@@ -246,3 +253,20 @@ def test_a_part_flat_before_a_gap_in_its_history_and_wearing_linearly_after_it_f
     found = forecast_alert(t, index)
     assert found.model == "linear" and found.alert_in_s == pytest.approx(1200.0, rel=0.05)
     assert found.ci95[0] <= 1200.0 <= found.ci95[1]
+
+
+def test_a_bin_is_cut_where_it_spans_a_gap_in_the_history() -> None:
+    # 3 windows of an index 0 (0-10 s), no index until 315 s, then linear wear from 120 s at 0.0007 per s, seen
+    # until 830 s (index 0.50): the alert is 719 s later. One bin of consecutive windows held a 0 and the first worn
+    # window (0.19 on fresh seed 2090's unit 0) and read their mean level: an exponential won, 529 s here.
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 835.0, 5.0)
+    truth = np.clip(0.0007 * (t - 120.0), 0.0, None)
+    index = truth + 0.003 * rng.standard_normal(t.size)
+    index[(t > 10.0) & (t < 315.0)] = np.nan
+    x, y = _binned(t[np.isfinite(index)], index[np.isfinite(index)])
+    assert np.all(y[x < 100.0] < 0.02) and not np.any((x > 20.0) & (x < 300.0))  # no bin straddles the gap
+    found = forecast_alert(t, index)
+    remaining = (1.0 - truth[-1]) / 0.0007
+    assert found.model == "linear" and found.alert_in_s == pytest.approx(remaining, rel=0.05)
+    assert found.ci95[0] <= remaining <= found.ci95[1]
