@@ -33,7 +33,10 @@ pool shares one straight severity trend) is the worn part and gets its index; th
 interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). When the
 runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part wears: from
 :data:`UNTOLD_LEVEL` on, every part the pool cannot rule out (its misfit within the margin of the best) then has no
-index (NaN) rather than a value on what may be the wrong part, or a 0 on what may be the worn one.
+index (NaN) rather than a value on what may be the wrong part, or a 0 on what may be the worn one. While the blamed
+part's wear is early (its index at the median of its pool's severities below
+:data:`~hydrowatch.condition.attribution.EARLY_LEVEL`) the margin is
+:data:`~hydrowatch.condition.attribution.EARLY_MARGIN`: there θ0's own error makes gaps as large as early wear does.
 load and motor_leak have their own relations and are always estimated.
 
 **The pump's capacity.** pump_leak is read on θ0 with the pump's capacity its own history gives
