@@ -1,7 +1,7 @@
 """What the scorer keeps per machine once every bounded buffer is full, and how much of it the attribution ring is.
 
 A parity scorer keeps, per machine: its window in progress, the evidence of its last ``--smoothing`` windows, its
-degradation stream (:class:`hydrowatch.condition.degradation.DegradationStream`: a ring of the fits of its last
+degradation stream (:class:`hydrowatch.condition.degradation_stream.DegradationStream`: a ring of the fits of its last
 :data:`~hydrowatch.condition.degradation.ATTRIBUTION_WINDOWS` valid windows, 60 = 300 s, which the valve-side
 attribution reads) and, in the service, its forecast history (:class:`hydrowatch.training.forecasts.FleetForecasts`,
 ``--forecast-history`` s of windows). This feeds ``--machines`` machines 0.1 s chunks of simulated recordings (three
@@ -23,7 +23,8 @@ import time
 import tracemalloc
 
 from hydrowatch.channels import STUDY_RIG
-from hydrowatch.condition.degradation import ATTRIBUTION_WINDOWS, DegradationStream
+from hydrowatch.condition.degradation import ATTRIBUTION_WINDOWS
+from hydrowatch.condition.degradation_stream import DegradationStream
 from hydrowatch.health.plan import DataPlan
 from hydrowatch.io.codec import sensor_chunk_from_arrays
 from hydrowatch.plant.fleet import simulate_states

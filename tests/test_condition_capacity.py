@@ -20,7 +20,8 @@ from hydrowatch.condition.capacity import (
     limit_ratio,
     limited_share,
 )
-from hydrowatch.condition.degradation import DETERMINED_STEP, DegradationStream, degradation_index, window_degradation
+from hydrowatch.condition.degradation import DETERMINED_STEP, degradation_index, window_degradation
+from hydrowatch.condition.degradation_stream import DegradationStream
 from hydrowatch.condition.estimates import parity_estimates, window_signals
 from hydrowatch.condition.parity import BLOCK
 from hydrowatch.plant import PlantSimulator

@@ -11,10 +11,9 @@ from hydrowatch.condition.forecast import (
     NEVER,
     _binned,
     forecast_alert,
-    operating_time,
     resampled_interval,
-    reset_start,
 )
+from hydrowatch.condition.forecast_segment import operating_time, reset_start
 from hydrowatch.errors import DataError
 
 HOP = 5.0

@@ -117,15 +117,10 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
 def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:
     """Median of each valid window's severity and the ``pool − 1`` valid windows before it (fewer at the start),
     shape (m,): a hypothesis's wear so far as its pool sees it, robust to one window's spike."""
-    s = np.asarray(severity, dtype=np.float64)
-    out = np.full(s.size, np.nan)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+    padded = np.concatenate([np.full(pool - 1, np.nan), np.asarray(severity, dtype=np.float64)])  # the first pools
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN pool: NaN
-        for k in range(min(pool - 1, s.size)):
-            out[k] = np.nanmedian(s[:k + 1])
-        if s.size >= pool:
-            out[pool - 1:] = np.nanmedian(sliding_window_view(s, pool), axis=-1)
-    return out
+        return np.asarray(np.nanmedian(sliding_window_view(padded, pool), axis=-1))
 
 
 def contenders(excess: np.ndarray | None, level: np.ndarray) -> np.ndarray:

@@ -61,15 +61,13 @@ import numpy as np
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
-from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, contenders, pool_median, say_of
+from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, contenders, pool_median
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
-from hydrowatch.condition.brake import brake_factor, brake_factors, with_brake
+from hydrowatch.condition.brake import brake_factors, with_brake
 from hydrowatch.condition.capacity import (
     PUMP_LIMIT,
     PUMP_LIMITED,
-    MachineCapacity,
-    capacity_error,
     capacity_errors,
     corrected,
     with_capacity,
@@ -77,7 +75,6 @@ from hydrowatch.condition.capacity import (
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
-from hydrowatch.condition.ring import Ring
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
 from hydrowatch.plant.parameters import PlantParameters
 
@@ -228,7 +225,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     pool : int, default :data:`ATTRIBUTION_WINDOWS`
         Valid windows deciding the valve-side part (:func:`attributed_valve_fault`).
     blamed : ndarray of int, shape (n,), optional
-        The valve-side part of each window when the caller has chosen it (:class:`DegradationStream`).
+        The valve-side part of each window when the caller has chosen it
+        (:class:`~.degradation_stream.DegradationStream`).
     excess : ndarray, shape (n, 4), optional
         With ``blamed``: each valve hypothesis's pool misfit minus the blamed part's (None: every window told
         apart).
@@ -267,7 +265,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     if capacity is None:
         capacity = (np.zeros(ratio.size) if capacity_known or "valve" not in relations
                     else capacity_errors(own.severity["pump_leak"], ratio, _determines(own, "pump_leak"), pool))
-    read = {}  # fault → index, low, high, determined of its own fit per valid window (+ valve: at the pool's median)
+    read = {}  # fault → index, low, high, determined of its own fit, per valid window
+    pooled = {}  # valve hypothesis → its index at the pool's median severity (its wear so far), per valid window
     for fault in FAULTS:
         if RELATION_OF[fault] not in relations or not valid.any():
             continue
@@ -284,14 +283,15 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
             med = pool_median(s, pool) if pool_severity is None else np.asarray(pool_severity[fault], dtype=float)
             stack = np.concatenate([stack, corrected(med[None], ratio, q) if fault == "pump_leak" else med[None]])
         v, lo, hi, *at_pool = _indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
-        read[fault] = (v, *widened(v, lo, hi), determined, *(at_pool or [v]))
+        read[fault] = (v, *widened(v, lo, hi), determined)
+        if at_pool:
+            pooled[fault] = at_pool[0]
     level = np.full(n, np.inf)  # the blamed part's index at its pool's median severity
-    for j, fault in enumerate(parity.VALVE_HYPOTHESES):
-        if fault in read and excess is not None:
-            level = np.where(blamed == j, _spread(read[fault][-1], valid), level)
+    for fault, at_pool in pooled.items():
+        level = np.where(blamed == parity.VALVE_HYPOTHESES.index(fault), _spread(at_pool, valid), level)
     contender = contenders(excess, level)
     untold = contender.sum(axis=1) > 1
-    for fault, (v, lo, hi, determined, *_) in read.items():
+    for fault, (v, lo, hi, determined) in read.items():
         if fault in parity.VALVE_HYPOTHESES:
             j = parity.VALVE_HYPOTHESES.index(fault)
             mine = blamed[valid] == j
@@ -357,61 +357,3 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
     blocks = (features.window - 1) // parity.BLOCK
     return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool,
                               capacity_known=getattr(features, "capacity_known_", True))
-
-
-class DegradationStream:
-    """One machine's degradation index online (river style): :meth:`update` with each valid window's free fits
-    returns that window's index, which equals :func:`features_degradation` of the machine's consecutive windows: the
-    valve-side part is the hypothesis with the smallest :func:`pool_misfit` over the last ``pool`` valid windows (a
-    ring of ``pool`` × 4 × 3 floats: each hypothesis's ŝ, MSE and c; one of ``pool`` nominal MSEs), the rest is the
-    window's own; where the unit's pump capacity is not known (``capacity_known_`` false), also a ring of ``pool`` × 3
-    floats (pump_leak's ŝ, Pc / P̄s, determined) and the machine's
-    :class:`~hydrowatch.condition.capacity.MachineCapacity` (101 counts).
-
-    Parameters
-    ----------
-    features : ConditionFeatures
-        Fitted (or commissioned): the unit's nominal parameters, window and relations.
-    pool : int, default :data:`ATTRIBUTION_WINDOWS`
-    """
-
-    def __init__(self, features: ConditionFeatures, pool: int = ATTRIBUTION_WINDOWS) -> None:
-        self.features, self.pool = features, pool
-        self._fits = Ring(pool, (len(parity.VALVE_HYPOTHESES), 3))
-        """Each valid window's ŝ, MSE and c per valve hypothesis."""
-        self._context = Ring(pool, (2,))
-        """Each valid window's valve MSE at nominal and share at the pump's limit (NaN: not in the estimates)."""
-        self._loads = Ring(pool)
-        known = getattr(features, "capacity_known_", True)
-        self._capacity = None if known else MachineCapacity()
-        self._limits = Ring(1 if known else pool, (3,))
-        """Each valid window's pump_leak ŝ, Pc / P̄s and whether its fit determines pump_leak (1/0)."""
-
-    def update(self, severity: Mapping[str, float], mse: Mapping[str, float],
-               curvature: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        """The index of a valid window from its free fits (one window's values of
-        :class:`~hydrowatch.condition.estimates.ParityEstimates`): ``{fault: {"value", "ci95", "measured"}}``, finite
-        only (``measured``: :meth:`Degradation.window`)."""
-        f = self.features
-        blamed, excess, capacity, medians = np.array([-1]), None, np.zeros(1), None
-        if "valve" in f.relations_:
-            self._fits.add([[a[h] for a in (severity, mse, curvature)] for h in parity.VALVE_HYPOTHESES])
-            self._context.add([mse.get(NOMINAL_VALVE, np.nan), severity.get(PUMP_LIMITED, np.nan)])
-            ring, context = np.moveaxis(self._fits.rows(), 0, -1), self._context.rows()  # (hypothesis, ŝ/MSE/c, window)
-            misfit = pool_misfit(ring[:, 0], ring[:, 1], ring[:, 2], context[None, :, 0], say_of(context[None, :, 1]))
-            blamed, excess = np.array([int(np.argmin(misfit))]), (misfit - misfit.min())[None, :]
-            medians = {h: np.array([np.nanmedian(ring[j, 0])]) for j, h in enumerate(parity.VALVE_HYPOTHESES)}
-            if self._capacity is not None:  # θ0's capacity not determined: the history's (capacity module)
-                self._limits.add([severity["pump_leak"], severity.get(PUMP_LIMIT, np.nan),
-                                  float(curvature["pump_leak"] * DETERMINED_STEP**2 >= mse["pump_leak"])])
-                rows = self._limits.rows()
-                capacity = np.array([self._capacity.add(capacity_error(rows[:, 0], rows[:, 1], rows[:, 2] > 0.5))])
-        brake = np.ones(1)
-        if "load" in f.relations_:
-            self._loads.add(float(severity.get(MOVING_LOAD, severity["load"])))
-            brake = np.array([brake_factor(self._loads.rows())])  # the ring holds the pool's last windows
-        one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
-        found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
-                                   f.relations_, self.pool, blamed, excess, brake, capacity,
-                                   pool_severity=medians)
-        return found.window(0, measured=True)

@@ -1,7 +1,7 @@
 """One machine's degradation-index history online, and its forecast (river style): :class:`ForecastStream`.
 
 The scorer keeps one per machine. :meth:`ForecastStream.update` takes each window's index (as the parity judge
-gives it, :meth:`~hydrowatch.condition.degradation.DegradationStream.update`) and returns nothing;
+gives it, :meth:`~hydrowatch.condition.degradation_stream.DegradationStream.update`) and returns nothing;
 :meth:`ForecastStream.get` forecasts every part seen from the history it holds, with the one implementation
 :func:`~hydrowatch.condition.forecast.forecast_alert`, as ``score --json``'s summary does for a file
 (:func:`hydrowatch.training.scoring.degradation_forecast`): the same windows give the same forecast.

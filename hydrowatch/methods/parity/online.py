@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from hydrowatch.condition.degradation import DegradationStream
+from hydrowatch.condition.degradation_stream import DegradationStream
 from hydrowatch.condition.estimates import ParityEstimates
 from hydrowatch.condition.evidence import operating_points
 from hydrowatch.condition.layout import CHANNELS as WINDOW_CHANNELS
@@ -90,7 +90,7 @@ class ParityJudge:
     def judge(self, raw: np.ndarray, machines: Sequence[str]
               ) -> list[tuple[Verdict, np.ndarray, dict[str, Any] | None]]:
         """Verdicts, relation scores (n_relations, n_states) and degradation indices (None where invalid;
-        :class:`~hydrowatch.condition.degradation.DegradationStream`) of closed windows ``raw`` (m, window,
+        :class:`~hydrowatch.condition.degradation_stream.DegradationStream`) of closed windows ``raw`` (m, window,
         n_columns)."""
         features = self.model.features_
         width = 2 * len(features.feature_names_)
