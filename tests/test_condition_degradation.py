@@ -9,6 +9,7 @@ from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition.attribution import (
     EARLY_LEVEL,
     EARLY_MARGIN,
+    HELD_MARGIN,
     LIMITED_SAY,
     NOMINAL_VALVE,
     confirmed,
@@ -360,6 +361,46 @@ def test_a_worn_valve_side_part_the_pool_cannot_tell_from_a_look_alike_has_no_in
                                                            "provisional": True}
 
 
+def test_a_part_told_apart_while_worn_is_held_against_a_look_alike():
+    # a relief spring told apart at index > 0.25 for 4 windows; a coil then overtakes it by 4 nats (more than the
+    # margin, less than the held margin) for 2 windows, then by 9: neither is told in those 2, the coil after them
+    n = 8
+    severity = {f: np.full(n, 0.3 if f in ("relief_spring", "valve_coil") else 0.0) for f in FAULTS}
+    mses = {"load": np.full(n, 1e-4), "motor": np.full(n, 1e-4), **{f: np.full(n, 1e-4) for f in VALVE_HYPOTHESES}}
+    fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
+    nominal, valid = PlantParameters(), np.ones(n, dtype=bool)
+    relief, coil = VALVE_HYPOTHESES.index("relief_spring"), VALVE_HYPOTHESES.index("valve_coil")
+    assert min(degradation_index(f, 0.3, nominal) for f in ("relief_spring", "valve_coil")) > EARLY_LEVEL
+    blamed = np.array([relief] * 4 + [coil] * 4)
+    excess = np.full((n, 4), 50.0)
+    excess[np.arange(n), blamed] = 0.0
+    excess[4:6, relief], excess[6:, relief], excess[:4, coil] = 4.0, 9.0, 9.0
+    assert ATTRIBUTION_MARGIN < 4.0 < HELD_MARGIN < 9.0
+    d = window_degradation(fits, valid, nominal, 124, ("load", "motor", "valve"), blamed=blamed, excess=excess)
+    assert np.isfinite(d.value["relief_spring"][:4]).all() and (d.value["valve_coil"][:4] == 0.0).all()
+    assert np.isnan(d.value["relief_spring"][4:6]).all() and np.isnan(d.value["valve_coil"][4:6]).all()
+    assert np.isfinite(d.value["valve_coil"][6:]).all() and (d.value["relief_spring"][6:] == 0.0).all()
+    assert d.held == coil
+    # window by window, as the online stream does, carrying the held part: the same
+    first = window_degradation(ParityEstimates(*({f: a[:5] for f, a in part.items()} for part in
+                                                 (severity, mses, fits.curvature))), valid[:5], nominal, 124,
+                               ("load", "motor", "valve"), blamed=blamed[:5], excess=excess[:5])
+    assert first.held == relief
+    rest = window_degradation(ParityEstimates(*({f: a[5:] for f, a in part.items()} for part in
+                                                (severity, mses, fits.curvature))), valid[5:], nominal, 124,
+                              ("load", "motor", "valve"), blamed=blamed[5:], excess=excess[5:], held=first.held)
+    for f in FAULTS:
+        np.testing.assert_array_equal(np.concatenate([first.value[f], rest.value[f]]), d.value[f])
+    # without the held part (a fresh stream) window 5 is told apart by the ordinary margin
+    alone = window_degradation(ParityEstimates(*({f: a[5:] for f, a in part.items()} for part in
+                                                 (severity, mses, fits.curvature))), valid[5:], nominal, 124,
+                               ("load", "motor", "valve"), blamed=blamed[5:], excess=excess[5:])
+    assert np.isfinite(alone.value["valve_coil"][0])
+    # a part told apart only in early wear (level below EARLY_LEVEL) is not held
+    near, held = contenders(excess[3:6], np.array([0.1, 0.5, 0.5]))
+    assert held == coil and near[1].sum() == 1
+
+
 def test_an_early_wear_is_told_apart_only_by_the_early_margin():
     # the relief at severity 0.1 (index 0.22, below the early level) explains 14 windows 2x better than the coil
     # (log 2 per window), which explains them at severity 0.1 too: 3 nats after 5 windows, 7 only after 11
@@ -395,9 +436,9 @@ def test_an_early_wear_is_told_apart_only_by_the_early_margin():
     assert np.isnan(d.value["relief_spring"][:4]).all() and np.isfinite(d.value["relief_spring"][4:]).all()
     # the margins themselves (attribution.contenders): the runner-up 5 nats behind is a contender only early
     excess = np.array([[0.0, 5.0, 20.0, 20.0]] * 2)
-    np.testing.assert_array_equal(contenders(excess, np.array([0.2, 0.3])),
+    np.testing.assert_array_equal(contenders(excess, np.array([0.2, 0.3]))[0],
                                   [[True, True, False, False], [True, False, False, False]])
-    assert not contenders(None, np.zeros(2)).any()
+    assert not contenders(None, np.zeros(2))[0].any()
 
 
 def test_a_provisional_value_is_confirmed_only_by_a_told_window_within_one_pool():

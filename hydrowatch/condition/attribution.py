@@ -43,6 +43,12 @@ alert, not early wear), every forecast the same; windows of a wearing relief spr
 0.1–0.5 have an index less often (median path 41–54 % / 59–64 % instead of 55–79 % / 80–85 %). A flat margin of 6
 lost three relief forecasts (docs/degradation.md, "Early wear is told apart only by a wider margin")."""
 
+HELD_MARGIN = 7.0
+"""Pool misfit (nats) by which another valve-side part must beat the held one (the part a pool last told apart
+while worn, at :data:`EARLY_LEVEL` or more) to be told apart from it, at any level. A worn part's pool keeps the
+same windows for 60 windows; a look-alike that overtakes it by 3–5 nats for a few windows beyond the alert read
+the coil 1.33–1.36 on a relief spring blamed for the 200 windows before (tuning seeds 2089 unit 3 and 2093 unit 3)."""
+
 EARLY_LEVEL = 0.25
 """Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
 runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
@@ -123,18 +129,30 @@ def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.nda
         return np.asarray(np.nanmedian(sliding_window_view(padded, pool), axis=-1))
 
 
-def contenders(excess: np.ndarray | None, level: np.ndarray) -> np.ndarray:
-    """Which valve-side parts each window's pool cannot rule out, shape (n, 4): those whose pool misfit is within
-    the margin of the blamed part's (``excess`` below it; the blamed part itself included). The margin is
-    :data:`EARLY_MARGIN` where the blamed part's ``level`` (its index at :func:`pool_median`, shape (n,); inf or
-    NaN: none) is below :data:`EARLY_LEVEL`, else :data:`ATTRIBUTION_MARGIN`; no ``excess``: none (every window
-    told apart)."""
+def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1) -> tuple[np.ndarray, int]:
+    """Which valve-side parts each window's pool cannot rule out, shape (n, 4), and the part held after the last
+    window.
+
+    A contender's pool misfit is within the margin of the blamed part's (``excess`` below it; the blamed part itself
+    included). The margin is :data:`EARLY_MARGIN` where the blamed part's ``level`` (its index at
+    :func:`pool_median`, shape (n,); inf or NaN: none) is below :data:`EARLY_LEVEL`, else :data:`ATTRIBUTION_MARGIN`;
+    and :data:`HELD_MARGIN` for the held part: the one the last pool told apart (the only contender) at a level of
+    :data:`EARLY_LEVEL` or more, before this window (``held`` before the first, −1: none). Windows in time order; no
+    ``excess``: no contenders (every window told apart) and ``held`` unchanged.
+    """
     lv = np.asarray(level, dtype=np.float64)
     if excess is None:
-        return np.zeros((lv.size, len(parity.VALVE_HYPOTHESES)), dtype=bool)
+        return np.zeros((lv.size, len(parity.VALVE_HYPOTHESES)), dtype=bool), held
     with np.errstate(invalid="ignore"):
-        margin = np.where(lv < EARLY_LEVEL, EARLY_MARGIN, ATTRIBUTION_MARGIN)
-    return np.asarray(excess) < margin[:, None]
+        worn = lv >= EARLY_LEVEL
+    margin = np.where(worn, ATTRIBUTION_MARGIN, EARLY_MARGIN)
+    near = np.asarray(excess) < margin[:, None]
+    for i in range(near.shape[0]):  # sequential: each window's held part is the last one told apart before it
+        if held >= 0 and excess[i, held] < HELD_MARGIN:
+            near[i, held] = True
+        if worn[i] and near[i].sum() == 1:
+            held = int(np.argmax(near[i]))
+    return near, held
 
 
 def say_of(limited: np.ndarray) -> np.ndarray:

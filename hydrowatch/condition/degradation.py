@@ -166,6 +166,9 @@ class Degradation:
     (its ``value`` NaN there), NaN elsewhere; None: none kept."""
     valid: np.ndarray | None = None
     """(n,) bool: the windows the attribution pool counts (valid ones); None: every window."""
+    held: int = -1
+    """The valve-side part held after the last window (:func:`~.attribution.contenders`; −1: none): where an online
+    stream's next window starts."""
 
     def history(self, fault: str, upto: int | None = None) -> np.ndarray:
         """The part's own index, NaN elsewhere, shape (n,) (or (upto + 1,): as known at window ``upto``), with the
@@ -207,7 +210,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
                        blamed: np.ndarray | None = None, excess: np.ndarray | None = None,
                        brake: np.ndarray | None = None, capacity: np.ndarray | None = None,
                        capacity_known: bool = True,
-                       pool_severity: Mapping[str, np.ndarray] | None = None) -> Degradation:
+                       pool_severity: Mapping[str, np.ndarray] | None = None, held: int = -1) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -244,6 +247,10 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     pool_severity : mapping of valve hypothesis to ndarray, shape (m,), optional
         Each valve hypothesis's median free-fit severity over the window's pool (None: from the estimates with
         ``pool``); the blamed part's index there chooses the margin (:func:`~.attribution.contenders`).
+    held : int, default -1
+        Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the part held before the first window
+        (the last told apart while worn, :data:`~.attribution.HELD_MARGIN`; −1: none); the result's ``held`` is the
+        one after the last.
     """
     n = valid.size
     value, low, high, provisional = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(4))
@@ -289,7 +296,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     level = np.full(n, np.inf)  # the blamed part's index at its pool's median severity
     for fault, at_pool in pooled.items():
         level = np.where(blamed == parity.VALVE_HYPOTHESES.index(fault), _spread(at_pool, valid), level)
-    contender = contenders(excess, level)
+    contender, held = contenders(excess, level, held)
     untold = contender.sum(axis=1) > 1
     for fault, (v, lo, hi, determined) in read.items():
         if fault in parity.VALVE_HYPOTHESES:
@@ -305,7 +312,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
         provisional[fault][valid] = np.where(mine & determined & not_told, v, np.nan)
-    return Degradation(value, low, high, measured, provisional, valid)
+    return Degradation(value, low, high, measured, provisional, valid, held)
 
 
 def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:

@@ -44,6 +44,8 @@ class DegradationStream:
         self._loads = Ring(pool)
         known = getattr(features, "capacity_known_", True)
         self._capacity = None if known else MachineCapacity()
+        self._held = -1
+        """The valve-side part the last pool told apart while worn (attribution.contenders; −1: none)."""
         self._limits = Ring(1 if known else pool, (3,))
         """Each valid window's pump_leak ŝ, Pc / P̄s and whether its fit determines pump_leak (1/0)."""
 
@@ -73,5 +75,6 @@ class DegradationStream:
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed, excess, brake, capacity,
-                                   pool_severity=medians)
+                                   pool_severity=medians, held=self._held)
+        self._held = found.held
         return found.window(0, measured=True)
