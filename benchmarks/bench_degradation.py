@@ -33,8 +33,11 @@ Per fault kind it prints:
 Run: ``python benchmarks/bench_degradation.py [--units 8] [--seed 2026 [2027 …]] [--hours 2] [--json OUT]
 [--fits DIR]``: ~110 s per unit on one core; with ``--fits DIR`` each unit's window fits are kept and read back on the
 next run (benchmarks/degradation_fits.py), which then takes ~5 s per unit: a change to the index or forecast rules is
-re-measured on the same windows. Seeds 7 and 2054–2093 tuned the constants of hydrowatch/condition/degradation.py,
-attribution.py and forecast.py during development (docs/degradation.md says which did what); report on another seed.
+re-measured on the same windows. ``--relief-shut``: only units whose commissioning had the pump at its limit in half
+of its samples or more (``unit_checks.RELIEF_SHUT_SHARE``: the relief's gain barely seen, about 1 unit in 40), the
+first ``--units`` of each seed (unit numbers are their place in the seed's draws). Seeds 7 and 2054–2093 tuned the
+constants of hydrowatch/condition/degradation.py, attribution.py and forecast.py during development
+(docs/degradation.md says which did what); report on another seed.
 """
 
 from __future__ import annotations
@@ -44,12 +47,13 @@ import json
 import time
 
 import numpy as np
-from degradation_fits import COMMISSIONING, START_S, TO_INDEX, W, cached_fits, draw_unit
+from degradation_fits import COMMISSIONING, START_S, TO_INDEX, W, cached_fits, draw_unit, relief_shut_units
 from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.degradation import window_degradation
 from hydrowatch.condition.forecast import forecast_alert, ruled_out_forecast
+from hydrowatch.condition.unit_checks import relief_barely_seen
 from hydrowatch.plant.faults import FAULTS
 from hydrowatch.plant.paths import path_index
 
@@ -65,7 +69,8 @@ def score_unit(fits: dict, draw: dict) -> dict:
     result: dict = {"shape": shape, "paths": {}, "pump_at_limit_share": round(fits["at_limit"], 4)}
     for machine, (ok, est) in fits["machines"].items():
         d = window_degradation(est, ok, fits["nominal"], blocks, fits["relations"],
-                               capacity_known=fits["capacity_known"])
+                               capacity_known=fits["capacity_known"],
+                               relief_barely_seen=relief_barely_seen(fits["at_limit"]))
         if machine == "healthy":
             forecasts = {f: _forecast(t, d, f, t.size - 1) for f in FAULTS}
             soonest = [f.alert_in_s for f in forecasts.values()]
@@ -154,15 +159,21 @@ def main() -> None:
                         help="commissioning recording: 300 s filtered noise 0-4 V (an identification run, default), "
                              "0-5 V (noise5: to full stroke), or 300 s of the working duty cycle")
     parser.add_argument("--only", type=int, default=None, help="run only unit K of the population (diagnosis)")
+    parser.add_argument("--relief-shut", action="store_true",
+                        help="only units whose commissioning barely saw the relief (pump at its limit in half of it "
+                             "or more: about 1 unit in 40), the first --units of each seed")
     parser.add_argument("--fits", default=None, metavar="DIR",
                         help="keep each unit's window fits in DIR and read them back when there (degradation_fits)")
     args = parser.parse_args()
+    if args.relief_shut and args.commission != "noise":
+        parser.error("--relief-shut selects units by their commissioning on filtered noise 0-4 V (--commission noise)")
     units: dict[str, dict] = {}
     with threadpool_limits(1):
         for seed in args.seed:
             rng = np.random.default_rng(seed)
-            for k in range(args.units):
-                draw = draw_unit(k, rng, args.hours)
+            drawn = (relief_shut_units(seed, args.units, args.hours) if args.relief_shut
+                     else [(k, draw_unit(k, rng, args.hours)) for k in range(args.units)])
+            for k, draw in drawn:
                 if args.only is not None and k != args.only:
                     continue
                 t0 = time.time()

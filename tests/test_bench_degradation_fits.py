@@ -48,5 +48,5 @@ def test_fits_of_another_draw_or_other_code_are_refused(stored, monkeypatch):
     with pytest.raises(ValueError, match=f"{path.name}.*another unit"):
         F.load_fits(path, draws[1])
     monkeypatch.setattr(F, "fingerprint", lambda: "0" * 64)
-    with pytest.raises(ValueError, match=f"{path.name}.*other library code"):
+    with pytest.raises(ValueError, match=f"{path.name}.*fits otherwise"):
         F.load_fits(path, draws[0])

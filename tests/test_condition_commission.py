@@ -380,6 +380,7 @@ def test_commission_command_writes_a_unit_bundle_that_score_uses(tmp_path: Path,
     # the saved unit knows whether its pump's capacity is determined (pump_leak's index waits for it where not)
     saved = ModelBundle.load(tmp_path / "units" / "m7").condition.features_
     assert saved.capacity_known_ == (at_limit >= PUMP_LIMIT_SHARE)
+    assert saved.pump_at_limit_ == pytest.approx(at_limit, abs=5e-5)  # and the share: its relief seen or not
     test, worn = simulate_states(["healthy", "load_warning"], seconds=60, nominal=day, seed=8,
                                  command=duty_cycle(60, (0.5, 3.5), seed=8))
     write_recording(test, tmp_path / "day.parquet")

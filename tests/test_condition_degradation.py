@@ -38,6 +38,7 @@ from hydrowatch.condition.estimates import (
 )
 from hydrowatch.condition.parity import VALVE_HYPOTHESES, valve_mse
 from hydrowatch.condition.parity import load_relation as parity_load_relation
+from hydrowatch.condition.unit_checks import RELIEF_SHUT_SHARE, relief_barely_seen
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle
 from hydrowatch.plant.faults import (
@@ -399,6 +400,42 @@ def test_a_part_told_apart_while_worn_is_held_against_a_look_alike():
     # a part told apart only in early wear (level below EARLY_LEVEL) is not held
     near, held = contenders(excess[3:6], np.array([0.1, 0.5, 0.5]))
     assert held == coil and near[1].sum() == 1
+
+
+def test_where_the_commissioning_barely_saw_the_relief_its_early_wear_is_not_told_from_the_coils():
+    # the coil blamed by 20 nats over the relief at index ~0.18 (below the early level): told apart on a unit whose
+    # relief the commissioning saw; not where it barely did (the relief's gain uncertain), then not at index > 0.25
+    n = 6
+    nominal, valid = PlantParameters(), np.ones(n, dtype=bool)
+    early = 0.01
+    while degradation_index("valve_coil", early, nominal) < 0.15:
+        early += 0.002
+    late = 0.1
+    assert UNTOLD_LEVEL < degradation_index("valve_coil", early, nominal) < EARLY_LEVEL
+    assert degradation_index("valve_coil", late, nominal) > EARLY_LEVEL
+    severity = {f: np.where(np.arange(n) < 3, early, late) if f in ("relief_spring", "valve_coil") else np.zeros(n)
+                for f in FAULTS}
+    mses = {"load": np.full(n, 1e-4), "motor": np.full(n, 1e-4), **{f: np.full(n, 1e-4) for f in VALVE_HYPOTHESES}}
+    fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
+    relief, coil = VALVE_HYPOTHESES.index("relief_spring"), VALVE_HYPOTHESES.index("valve_coil")
+    blamed = np.full(n, coil)
+    excess = np.full((n, 4), 50.0)
+    excess[:, coil], excess[:, relief] = 0.0, 20.0
+    args = (fits, valid, nominal, 124, ("load", "motor", "valve"))
+    levels = {f: severity[f] for f in VALVE_HYPOTHESES}  # each window's pool at its own severity
+    seen = window_degradation(*args, blamed=blamed, excess=excess, pool_severity=levels)
+    assert np.isfinite(seen.value["valve_coil"]).all() and (seen.value["relief_spring"] == 0.0).all()
+    barely = window_degradation(*args, blamed=blamed, excess=excess, pool_severity=levels, relief_barely_seen=True)
+    assert np.isnan(barely.value["valve_coil"][:3]).all() and np.isnan(barely.value["relief_spring"][:3]).all()
+    np.testing.assert_array_equal(barely.value["valve_coil"][3:], seen.value["valve_coil"][3:])
+    assert (barely.value["relief_spring"][3:] == 0.0).all()
+    # the other look-alikes keep their margins: a valve leak blamed over the relief by 20 nats is told apart
+    leak = VALVE_HYPOTHESES.index("valve_leak")
+    other = excess.copy()
+    other[:, leak], other[:, coil] = 0.0, 50.0
+    near, _ = contenders(other, np.full(n, 0.18), relief_barely_seen=True)
+    assert (near.sum(axis=1) == 1).all()
+    assert relief_barely_seen(RELIEF_SHUT_SHARE) and not relief_barely_seen(0.49) and not relief_barely_seen(None)
 
 
 def test_an_early_wear_is_told_apart_only_by_the_early_margin():

@@ -69,7 +69,7 @@ def summary_lines(info: dict[str, Any]) -> list[str]:
     """What ``commission`` says to a person about the commissioning ``info`` (its ``--json`` object), a line each:
     the unit, and what the recording left undetermined with what to record to determine it."""
     from hydrowatch.condition.commission import CAPACITY_MARGIN, relief_open
-    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, RELIEF_SHUT_SHARE
+    from hydrowatch.condition.unit_checks import PUMP_LIMIT_SHARE, relief_barely_seen
 
     said: list[str] = []
     unit = info["unit"]
@@ -88,10 +88,12 @@ def summary_lines(info: dict[str, Any]) -> list[str]:
                     "identified one; pump_leak has no degradation index until a worn pump's windows at its limit "
                     "determine it; a few seconds of steps to full stroke show it if the valve can then draw more than "
                     "the pump delivers (a pump that outdelivers the valve never shows it healthy)")
-    if at_limit is not None and at_limit >= RELIEF_SHUT_SHARE:
+    if at_limit is not None and relief_barely_seen(at_limit):
         said.append(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
                     "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve "
-                    "coil; commands that keep the valve's flow below the pump's (the relief open) would determine it")
+                    "coil: neither has a degradation index in early wear (below 0.25) unless their look-alikes are "
+                    "ruled out; commands that keep the valve's flow below the pump's (the relief open) would "
+                    "determine it")
     if unit["supply"] == "identified" and unit.get("left_to_prior"):
         kept = ", ".join(unit["left_to_prior"])
         said.append(f"  not informed by the recording, kept near the trained unit's values: {kept}")

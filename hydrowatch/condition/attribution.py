@@ -129,7 +129,8 @@ def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.nda
         return np.asarray(np.nanmedian(sliding_window_view(padded, pool), axis=-1))
 
 
-def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1) -> tuple[np.ndarray, int]:
+def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
+               relief_barely_seen: bool = False) -> tuple[np.ndarray, int]:
     """Which valve-side parts each window's pool cannot rule out, shape (n, 4), and the part held after the last
     window.
 
@@ -139,6 +140,12 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1) -> 
     and :data:`HELD_MARGIN` for the held part: the one the last pool told apart (the only contender) at a level of
     :data:`EARLY_LEVEL` or more, before this window (``held`` before the first, −1: none). Windows in time order; no
     ``excess``: no contenders (every window told apart) and ``held`` unchanged.
+
+    With ``relief_barely_seen`` (the unit's commissioning had the pump at its limit in
+    :data:`~hydrowatch.condition.unit_checks.RELIEF_SHUT_SHARE` of its samples or more: its relief gain Kr is
+    uncertain) the relief spring and the coil are each other's contenders while the blamed one of them is below
+    :data:`EARLY_LEVEL`, whatever the excess: the relief hypothesis, fitted with a wrong Kr, explains the relief's own
+    early wear worse than the coil does (docs/degradation.md, "A relief barely seen").
     """
     lv = np.asarray(level, dtype=np.float64)
     if excess is None:
@@ -147,12 +154,21 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1) -> 
         worn = lv >= EARLY_LEVEL
     margin = np.where(worn, ATTRIBUTION_MARGIN, EARLY_MARGIN)
     near = np.asarray(excess) < margin[:, None]
+    if relief_barely_seen:
+        blamed = np.where(np.isfinite(excess).all(axis=1), np.argmin(np.nan_to_num(excess, nan=np.inf), axis=1), -1)
+        for a, b in (LOOK_ALIKES, LOOK_ALIKES[::-1]):
+            near[~worn & (blamed == a), b] = True
     for i in range(near.shape[0]):  # sequential: each window's held part is the last one told apart before it
         if held >= 0 and excess[i, held] < HELD_MARGIN:
             near[i, held] = True
         if worn[i] and near[i].sum() == 1:
             held = int(np.argmax(near[i]))
     return near, held
+
+
+LOOK_ALIKES = (parity.VALVE_HYPOTHESES.index("relief_spring"), parity.VALVE_HYPOTHESES.index("valve_coil"))
+"""The pair of valve-side parts a unit whose relief was barely seen cannot tell apart in early wear
+(:func:`contenders`)."""
 
 
 def say_of(limited: np.ndarray) -> np.ndarray:

@@ -299,6 +299,7 @@ def commission(model: ConditionModel, windows: np.ndarray) -> Commissioning:
           **{f"factor_{k}": round(v, 3) for k, v in unit.factors.items()})
     moved.features_.capacity_known_, at_limit = capacity_determined(valid, unit.parameters, features.sensors,
                                                                     features.viscosity_coefficient)
+    moved.features_.pump_at_limit_ = at_limit
     return Commissioning(moved, unit, seconds, healthy, supply, choice.split, choice.held_out,
                          moved.features_.relief_spread_, at_limit)
 

@@ -75,6 +75,7 @@ from hydrowatch.condition.capacity import (
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
+from hydrowatch.condition.unit_checks import relief_barely_seen
 from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
 from hydrowatch.plant.parameters import PlantParameters
 
@@ -210,7 +211,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
                        blamed: np.ndarray | None = None, excess: np.ndarray | None = None,
                        brake: np.ndarray | None = None, capacity: np.ndarray | None = None,
                        capacity_known: bool = True,
-                       pool_severity: Mapping[str, np.ndarray] | None = None, held: int = -1) -> Degradation:
+                       pool_severity: Mapping[str, np.ndarray] | None = None, held: int = -1,
+                       relief_barely_seen: bool = False) -> Degradation:
     """Index and interval of every fault the ``relations`` test, per window (module docstring).
 
     Parameters
@@ -251,6 +253,10 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         Index into :data:`~hydrowatch.condition.parity.VALVE_HYPOTHESES` of the part held before the first window
         (the last told apart while worn, :data:`~.attribution.HELD_MARGIN`; −1: none); the result's ``held`` is the
         one after the last.
+    relief_barely_seen : bool, default False
+        The unit's commissioning barely saw the relief's gain
+        (:func:`~hydrowatch.condition.unit_checks.relief_barely_seen`): the relief spring's and the coil's early wear
+        are not told apart (:func:`~.attribution.contenders`).
     """
     n = valid.size
     value, low, high, provisional = ({f: np.full(n, np.nan) for f in FAULTS} for _ in range(4))
@@ -296,7 +302,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     level = np.full(n, np.inf)  # the blamed part's index at its pool's median severity
     for fault, at_pool in pooled.items():
         level = np.where(blamed == parity.VALVE_HYPOTHESES.index(fault), _spread(at_pool, valid), level)
-    contender, held = contenders(excess, level, held)
+    contender, held = contenders(excess, level, held, relief_barely_seen)
     untold = contender.sum(axis=1) > 1
     for fault, (v, lo, hi, determined) in read.items():
         if fault in parity.VALVE_HYPOTHESES:
@@ -363,4 +369,5 @@ def features_degradation(features: ConditionFeatures, windows: np.ndarray, pool:
         return Degradation(empty, empty, empty, {f: np.zeros(valid.size, dtype=bool) for f in FAULTS})
     blocks = (features.window - 1) // parity.BLOCK
     return window_degradation(estimates, valid, features.nominal_, blocks, features.relations_, pool,
-                              capacity_known=getattr(features, "capacity_known_", True))
+                              capacity_known=getattr(features, "capacity_known_", True),
+                              relief_barely_seen=relief_barely_seen(getattr(features, "pump_at_limit_", None)))

@@ -17,6 +17,7 @@ from hydrowatch.condition.degradation import DETERMINED_STEP, window_degradation
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.ring import Ring
+from hydrowatch.condition.unit_checks import relief_barely_seen
 
 
 class DegradationStream:
@@ -75,6 +76,7 @@ class DegradationStream:
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed, excess, brake, capacity,
-                                   pool_severity=medians, held=self._held)
+                                   pool_severity=medians, held=self._held,
+                                   relief_barely_seen=relief_barely_seen(getattr(f, "pump_at_limit_", None)))
         self._held = found.held
         return found.window(0, measured=True)

@@ -117,6 +117,11 @@ class ConditionFeatures(EvidenceRows):
     capacity_known_ : bool
         Whether the pump's capacity Dp·ωp is determined (False: a commissioning recording never drove the pump to its
         limit; pump_leak's index then waits for the machine's history, :mod:`hydrowatch.condition.capacity`).
+    pump_at_limit_ : float or None
+        Share of the identification (or commissioning) recording's samples with the pump at its limit
+        (:func:`~hydrowatch.condition.unit_checks.pump_at_limit_share`; None: not identified, or not known). From
+        :data:`~hydrowatch.condition.unit_checks.RELIEF_SHUT_SHARE` the relief's gain is barely seen and the relief
+        spring's early wear is not told from the coil's (:func:`~hydrowatch.condition.attribution.contenders`).
     feature_names_ : list of str
     """
 
@@ -178,12 +183,14 @@ class ConditionFeatures(EvidenceRows):
             raise DataError(f"windows_by_state must include 'healthy'. Got {sorted(windows_by_state)}.")
         self.unit_: dict[str, Any] = {}
         self.relief_spread_, self.brake_open_, self.capacity_known_ = 0.0, False, True
+        self.pump_at_limit_: float | None = None
         if self.identify:
             healthy = L.check_windows(windows_by_state["healthy"], self.window)
             unit = identify_unit(healthy, p, self.sensors, self.viscosity_coefficient)
             p, self.unit_ = unit.parameters, unit.summary()
             self.brake_open_ = "omega_s" in left_to_prior(unit)
-            self.capacity_known_ = capacity_determined(healthy, p, self.sensors, self.viscosity_coefficient)[0]
+            self.capacity_known_, self.pump_at_limit_ = capacity_determined(healthy, p, self.sensors,
+                                                                            self.viscosity_coefficient)
         self.nominal_ = p
         # healthy first: argmax keeps the first of equal scores, and in a window no fault shows in,
         # the faults that only show under load tie with healthy (ParityRule)

@@ -34,7 +34,8 @@ def features_to_dict(features: ConditionFeatures) -> dict[str, Any]:
             "level_boxes": {k: {j: list(b) for j, b in box.items()} for k, box in f.level_boxes_.items()},
             "floors": f.floors_, "unit": f.unit_, "relief_spread": getattr(f, "relief_spread_", 0.0),
             "brake_open": bool(getattr(f, "brake_open_", False)),
-            "capacity_known": bool(getattr(f, "capacity_known_", True))}
+            "capacity_known": bool(getattr(f, "capacity_known_", True)),
+            "pump_at_limit": getattr(f, "pump_at_limit_", None)}
 
 
 def features_from_dict(cls: type[ConditionFeatures], data: Mapping[str, Any]) -> ConditionFeatures:
@@ -56,6 +57,8 @@ def features_from_dict(cls: type[ConditionFeatures], data: Mapping[str, Any]) ->
         model.relief_spread_ = float(data.get("relief_spread", 0.0))  # saved since 2026-11-26 (0: determined)
         model.brake_open_ = bool(data.get("brake_open", False))  # saved since 2026-11-27 (condition/standstill.py)
         model.capacity_known_ = bool(data.get("capacity_known", True))  # saved since 2026-12-02 (condition/capacity.py)
+        share = data.get("pump_at_limit")  # saved since 2026-12-03 (None: not known)
+        model.pump_at_limit_ = None if share is None else float(share)
         if "level_boxes" in data:  # saved since commissioning (boxes moved to a unit are not recomputed)
             model.level_boxes_ = _boxes(data["level_boxes"])
         else:

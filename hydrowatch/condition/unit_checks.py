@@ -85,6 +85,12 @@ spring as the coil in up to 20 % of its windows (docs/degradation.md, "Limits");
 0.81–1.15 × (one at 0.19 at 0.81 ×, 9.9 % of its relief path blamed on the coil: under this share, not flagged)."""
 
 
+def relief_barely_seen(share: float | None) -> bool:
+    """Whether a commissioning recording with ``share`` of its samples at the pump's limit barely saw the relief's
+    gain (:data:`RELIEF_SHUT_SHARE`; None: not known, as in bundles saved before 2026-12-03: False)."""
+    return share is not None and share >= RELIEF_SHUT_SHARE
+
+
 def pump_at_limit_share(windows: np.ndarray, p: PlantParameters, sensors: Sequence[str] = SENSORS,
                         viscosity_coefficient: float = 0.04) -> float:
     """Share of the valid samples at which the pump of a unit with parameters ``p`` delivers all it can: the supply
