@@ -130,7 +130,7 @@ def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.nda
 
 
 def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
-               relief_barely_seen: bool = False) -> tuple[np.ndarray, int]:
+               relief_barely_seen: bool = False, blamed: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Which valve-side parts each window's pool cannot rule out, shape (n, 4), and the part held after the last
     window.
 
@@ -145,7 +145,8 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     :data:`~hydrowatch.condition.unit_checks.RELIEF_SHUT_SHARE` of its samples or more: its relief gain Kr is
     uncertain) the relief spring and the coil are each other's contenders while the blamed one of them is below
     :data:`EARLY_LEVEL`, whatever the excess: the relief hypothesis, fitted with a wrong Kr, explains the relief's own
-    early wear worse than the coil does (docs/degradation.md, "A relief barely seen").
+    early wear worse than the coil does (docs/degradation.md, "A relief barely seen"); ``blamed`` (shape (n,), −1:
+    invalid) is the part with no excess, found from ``excess`` when not given.
     """
     lv = np.asarray(level, dtype=np.float64)
     if excess is None:
@@ -155,7 +156,8 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     margin = np.where(worn, ATTRIBUTION_MARGIN, EARLY_MARGIN)
     near = np.asarray(excess) < margin[:, None]
     if relief_barely_seen:
-        blamed = np.where(np.isfinite(excess).all(axis=1), np.argmin(np.nan_to_num(excess, nan=np.inf), axis=1), -1)
+        if blamed is None:
+            blamed = np.where(np.isfinite(excess).all(axis=1), np.argmin(excess, axis=1), -1)
         for a, b in (LOOK_ALIKES, LOOK_ALIKES[::-1]):
             near[~worn & (blamed == a), b] = True
     for i in range(near.shape[0]):  # sequential: each window's held part is the last one told apart before it

@@ -315,7 +315,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
     level = np.full(n, np.inf)  # the blamed part's index at its pool's median severity
     for fault, at_pool in pooled.items():
         level = np.where(blamed == parity.VALVE_HYPOTHESES.index(fault), _spread(at_pool, valid), level)
-    contender, held = contenders(excess, level, held, relief_barely_seen)
+    contender, held = contenders(excess, level, held, relief_barely_seen, blamed)
     untold = contender.sum(axis=1) > 1
     for fault, (v, lo, hi, determined) in read.items():
         if fault in parity.VALVE_HYPOTHESES:
