@@ -21,8 +21,10 @@ Per fault kind it prints:
   had any such window (each listed after the table, with the part and the unit's commissioning);
 - ``forecast err``: at the first window whose true index passes 0.5, the forecast time to alert against the truth,
   |error| / truth (median and worst unit), and ``covered``: the share of paths whose 95 % interval holds the truth
-  (``None`` forecasts count as wrong and not covered), ``no fcst`` the paths without one, and ``false fcst`` the paths
-  on which, at that moment, another part forecasts an alert (any time ahead);
+  (``None`` forecasts count as wrong and not covered), ``no fcst`` the paths without one, ``false fcst`` the paths
+  on which, at that moment, another part forecasts an alert (any time ahead), and ``either`` those on which another
+  part's alert forecast says it may be this part's (the relief spring and the coil sharing one index on a unit whose
+  relief was barely seen, docs/degradation.md; the path's own forecast then says so too);
 - ``95% holds``: the share of a path's indexed windows whose 95 % interval holds the true index (median and worst
   unit; the interval's honesty, docs/degradation.md "The 95 % interval"), and ``±`` its median half-width (the
   median over paths of each path's median);
@@ -52,7 +54,7 @@ from threadpoolctl import threadpool_limits
 
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition.degradation import window_degradation
-from hydrowatch.condition.forecast import forecast_alert, ruled_out_forecast
+from hydrowatch.condition.forecast import part_forecast
 from hydrowatch.condition.unit_checks import relief_barely_seen
 from hydrowatch.plant.faults import FAULTS
 from hydrowatch.plant.paths import path_index
@@ -97,11 +99,15 @@ def score_unit(fits: dict, draw: dict) -> dict:
         t_alert = START_S + path.duration_s * _fraction_at(1.0 / TO_INDEX, shape)
         remaining = t_alert - (t[now] + W / 400.0)
         f = _forecast(t, d, fault, now)
-        wrong = {g: _forecast(t, d, g, now).alert_in_s for g in FAULTS if g != fault}
-        found = {g: x for g, x in wrong.items() if x is not None}  # a false alert forecast
+        others = {g: _forecast(t, d, g, now) for g in FAULTS if g != fault}
+        # another part's alert forecast: false, unless it says it may be this part's (a shared index, untold_from)
+        found = {g: o.alert_in_s for g, o in others.items() if o.alert_in_s is not None and o.untold_from != fault}
         row["others_forecast_s"] = min(found.values(), default=None)
         row["others_forecast_part"] = min(found, key=found.__getitem__) if found else None
-        row.update(remaining_s=remaining, forecast_s=f.alert_in_s, ci95=list(f.ci95), model=f.model, reason=f.reason)
+        row["either_forecast_parts"] = sorted(g for g, o in others.items()
+                                              if o.alert_in_s is not None and o.untold_from == fault)
+        row.update(remaining_s=remaining, forecast_s=f.alert_in_s, ci95=list(f.ci95), model=f.model, reason=f.reason,
+                   untold_from=f.untold_from)
         row["forecast_err"] = None if f.alert_in_s is None else abs(f.alert_in_s - remaining) / remaining
         lo, hi = f.ci95
         row["covered"] = bool(f.alert_in_s is not None
@@ -112,11 +118,9 @@ def score_unit(fits: dict, draw: dict) -> dict:
 
 def _forecast(t: np.ndarray, d, fault: str, now: int):
     """The forecast ``score --json`` gives of the part from windows 0..now, as the machine knew them then (a
-    provisional value a later pool confirms joins only then; a part the latest window rules out has none:
-    ``training.scoring.degradation_forecast``)."""
-    if d.ruled_out(fault, now):
-        return ruled_out_forecast()
-    return forecast_alert(t[: now + 1], d.history(fault, upto=now))
+    provisional value a later pool confirms joins only then; a part the latest window rules out has none; a part
+    sharing its index with a look-alike says so: ``forecast.part_forecast``)."""
+    return part_forecast(t, d, fault, now)
 
 
 def _interval_covers(d, fault: str, truth: np.ndarray) -> float | None:
@@ -171,7 +175,7 @@ def main() -> None:
     with threadpool_limits(1):
         for seed in args.seed:
             rng = np.random.default_rng(seed)
-            drawn = (relief_shut_units(seed, args.units, args.hours) if args.relief_shut
+            drawn = (relief_shut_units(seed, args.units, args.hours, folder=args.fits) if args.relief_shut
                      else [(k, draw_unit(k, rng, args.hours)) for k in range(args.units)])
             for k, draw in drawn:
                 if args.only is not None and k != args.only:
@@ -194,7 +198,7 @@ def summarise(units: dict[str, dict], args: argparse.Namespace) -> None:
           f"0.5-3.5 V, later day, commissioned on {args.commission}")
     print(f"{'fault':14} {'index MAE med/worst':>20} {'indexed':>8} {'early med/worst':>16} {'others max':>10} "
           f"{'>0.15':>7} {'paths':>5} {'fcst err med/worst':>19} {'covered':>8} {'no fcst':>8} "
-          f"{'95% holds med/worst':>20} {'±':>6} {'false fcst':>10}")
+          f"{'95% holds med/worst':>20} {'±':>6} {'false fcst':>10} {'either':>6}")
     worn = []
     for fault in FAULTS:
         rows = [u["paths"][fault] for u in units.values()]
@@ -207,7 +211,8 @@ def summarise(units: dict[str, dict], args: argparse.Namespace) -> None:
               f"{np.mean([r['covered'] for r in rows]):8.0%} {sum(r['forecast_s'] is None for r in rows):8d} "
               f"{_median_worst([r.get('interval_covers') for r in rows])} "
               f"{np.median([r['interval_half_width'] for r in rows if r.get('interval_half_width') is not None]):6.3f} "
-              f"{sum(r.get('others_forecast_s') is not None for r in rows):10d}")
+              f"{sum(r.get('others_forecast_s') is not None for r in rows):10d} "
+              f"{sum(bool(r.get('either_forecast_parts')) for r in rows):6d}")
         worn += [f"  {name} {fault}: {', '.join(r['others_worn'])} above {FALSE_WEAR} in {r['others_share']:.1%} of "
                  f"its windows (largest {r['others_max']:.2f}; commissioning at the pump's limit "
                  f"{units[name]['pump_at_limit_share']:.0%})"

@@ -100,17 +100,30 @@ def _true_share(draw: dict) -> float:
                                draw["unit"])
 
 
-def relief_shut_units(seed: int, units: int, hours: float, limit: int = 2000) -> list[tuple[int, dict]]:
+def relief_shut_units(seed: int, units: int, hours: float, limit: int = 2000,
+                      folder: str | Path | None = None) -> list[tuple[int, dict]]:
     """The first ``units`` units the seed draws whose commissioning (300 s of filtered noise 0–4 V) has the pump at
     its limit in :data:`RELIEF_SHUT_SHARE` of its samples or more (the relief's gain barely seen: about 1 unit in 40),
-    as (k, draw); a unit is commissioned only when its true parameters give :data:`SCREEN_SHARE` or more."""
+    as (k, draw); a unit is commissioned only when its true parameters give :data:`SCREEN_SHARE` or more. With a
+    ``folder`` (``--fits``) the screen's unit numbers are kept there with the fingerprint of the code that screened
+    (a replay then draws them without simulating the screen, ~2 minutes per seed)."""
     rng, found = np.random.default_rng(seed), []
+    kept = None if folder is None else Path(folder) / f"seed{seed}_relief_shut_{hours:g}h.json"
+    if kept is not None and kept.exists():
+        known = json.loads(kept.read_text())
+        if known["fingerprint"] == fingerprint() and len(known["units"]) >= units:
+            wanted = set(known["units"][:units])
+            draws = [(k, draw_unit(k, rng, hours)) for k in range(max(wanted) + 1)]
+            return [(k, d) for k, d in draws if k in wanted]
     for k in range(limit):
         draw = draw_unit(k, rng, hours)
         if _true_share(draw) >= SCREEN_SHARE and commission(draw["unit"], draw["commission_seed"], "noise")[1] \
                 >= RELIEF_SHUT_SHARE:
             found.append((k, draw))
             if len(found) == units:
+                if kept is not None:
+                    kept.parent.mkdir(parents=True, exist_ok=True)
+                    kept.write_text(json.dumps({"fingerprint": fingerprint(), "units": [k for k, _ in found]}))
                 return found
     raise ValueError(f"seed {seed}: only {len(found)} of {limit} units drawn had the relief barely seen")
 

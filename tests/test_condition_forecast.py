@@ -216,7 +216,7 @@ def test_forecast_stream_keeps_a_bounded_history_and_forecasts_it_like_a_file():
         stream.update(float(t[i]), {"load": {"value": load[i], "ci95": [0.0, 1.0]},
                                     "valve_coil": {"value": 0.0 if blamed[i] else coil[i], "measured": not blamed[i]}})
     kept_t, kept = stream.history()
-    assert len(stream) == 500 and kept_t.tolist() == t[-500:].tolist() and stream.nbytes == 500 * (8 + 2 * 6 * 4)
+    assert len(stream) == 500 and kept_t.tolist() == t[-500:].tolist() and stream.nbytes == 500 * (8 + 2 * 6 * 4 + 4)
     assert np.isnan(kept[blamed[-500:], 4]).all() and np.isnan(kept[:, 1]).all()  # pump_leak never seen: NaN
     got = stream.get()
     assert set(got) == {"load", "valve_coil"}  # only the parts seen are forecast
@@ -269,3 +269,67 @@ def test_a_bin_is_cut_where_it_spans_a_gap_in_the_history() -> None:
     remaining = (1.0 - truth[-1]) / 0.0007
     assert found.model == "linear" and found.alert_in_s == pytest.approx(remaining, rel=0.05)
     assert found.ci95[0] <= remaining <= found.ci95[1]
+
+
+def test_where_the_relief_and_the_coil_share_one_index_both_forecast_it_and_say_so():
+    # a unit whose relief was barely seen: the coil blamed over the relief by 1 nat (untold) in every window, both
+    # fits wearing alike from index ~0.15 to ~0.45 over 30 minutes. Neither has an index; the pair's (the coil's
+    # provisional value) is each one's forecast history, and each forecast names the other; online the same
+    from hydrowatch.condition.degradation import degradation_index, window_degradation
+    from hydrowatch.condition.estimates import ParityEstimates
+    from hydrowatch.condition.forecast import part_forecast
+    from hydrowatch.condition.forecast_stream import ForecastStream
+    from hydrowatch.condition.parity import VALVE_HYPOTHESES
+    from hydrowatch.plant.faults import FAULTS
+    from hydrowatch.plant.parameters import PlantParameters
+
+    n, nominal = 360, PlantParameters()
+    t = np.arange(n) * HOP
+    wear = np.linspace(0.035, 0.13, n)
+    index = degradation_index("valve_coil", wear, nominal)
+    grid = np.linspace(0.0, 0.9, 901)  # the relief's severities of the same index (its own scale)
+    severity = {f: np.zeros(n) for f in FAULTS}
+    severity["valve_coil"] = wear
+    severity["relief_spring"] = np.interp(index, degradation_index("relief_spring", grid, nominal), grid)
+    mses = {"load": np.full(n, 1e-4), "motor": np.full(n, 1e-4), **{f: np.full(n, 1e-4) for f in VALVE_HYPOTHESES}}
+    fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
+    relief, coil = VALVE_HYPOTHESES.index("relief_spring"), VALVE_HYPOTHESES.index("valve_coil")
+    excess = np.full((n, 4), 50.0)
+    excess[:, coil], excess[:, relief] = 0.0, 1.0
+    args = (fits, np.ones(n, dtype=bool), nominal, 124, ("load", "motor", "valve"))
+    kw = {"blamed": np.full(n, coil), "excess": excess, "pool_severity": {f: severity[f] for f in VALVE_HYPOTHESES}}
+    assert 0.1 < index[0] < 0.2 and 0.4 < index[-1] < 0.6
+    d = window_degradation(*args, relief_barely_seen=True, **kw)
+    assert np.isnan(d.value["relief_spring"]).all() and np.isnan(d.value["valve_coil"]).all()
+    assert d.shared is not None and d.shared.all() and d.parts() == list(FAULTS)
+    np.testing.assert_allclose(d.history("relief_spring"), index, rtol=1e-9)
+    np.testing.assert_allclose(d.history("valve_coil"), index, rtol=1e-9)
+    assert d.untold_from("relief_spring") == "valve_coil" and d.untold_from("valve_coil") == "relief_spring"
+    both = {f: part_forecast(t, d, f) for f in ("relief_spring", "valve_coil")}
+    want = forecast_alert(t, index)
+    truth = (1.0 - index[-1]) / ((index[-1] - index[0]) / (t[-1] - t[0]))  # about linear: the crossing ahead
+    for f, other in (("relief_spring", "valve_coil"), ("valve_coil", "relief_spring")):
+        assert both[f].alert_in_s == pytest.approx(want.alert_in_s, rel=1e-9)
+        assert both[f].alert_in_s == pytest.approx(truth, rel=0.25)
+        assert both[f].to_dict()["untold_from"] == other
+    # a unit whose relief was seen: the same windows leave the relief without a history ("too short"), the coil's
+    # its own provisional values waiting for a pool to confirm them; no forecast names another part
+    seen = window_degradation(*args, **kw)
+    assert seen.shared is None and "relief_spring" not in seen.parts()
+    assert part_forecast(t, seen, "relief_spring").reason.startswith("too short")
+    assert "untold_from" not in part_forecast(t, seen, "valve_coil").to_dict()
+    # online, window by window, as the scorer feeds its forecasts: the same forecasts, the same names
+    stream = ForecastStream()
+    for i in range(n):
+        stream.update(float(t[i]), d.window(i, measured=True))
+    online = stream.get()
+    for f in ("relief_spring", "valve_coil"):
+        assert online[f].alert_in_s == pytest.approx(both[f].alert_in_s, rel=1e-3)
+        assert online[f].untold_from == both[f].untold_from
+    # once the pool tells the coil apart (blamed by the margin), the relief reads 0, ruled out: no shared forecast
+    told = excess.copy()
+    told[-1, relief] = 20.0
+    last = window_degradation(*args, relief_barely_seen=True, **{**kw, "excess": told})
+    assert last.ruled_out("relief_spring") and last.untold_from("relief_spring") is None
+    assert part_forecast(t, last, "relief_spring").reason.startswith("ruled out")
+    assert part_forecast(t, last, "valve_coil").untold_from is None

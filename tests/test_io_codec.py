@@ -65,10 +65,10 @@ def test_schemas_carry_name_version_units_and_descriptions():
 def test_schema_files_are_plain_json_with_every_field_documented():
     files = sorted(p.name for p in schemas_dir().glob("*.json"))
     assert files == ["cycle_verdict.v1.json", "cycle_verdict.v2.json", "expected_window.v1.json", "forecast.v1.json",
-                     "health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json", "rig_cycles.v1.json",
-                     "sensor_chunk.v1.json", "sensor_chunk.v2.json", "status.v1.json"]
+                     "forecast.v2.json", "health_verdict.v1.json", "health_verdict.v2.json", "kl_window.v1.json",
+                     "rig_cycles.v1.json", "sensor_chunk.v1.json", "sensor_chunk.v2.json", "status.v1.json"]
     assert [current_version(n) for n in ("sensor_chunk", "kl_window", "health_verdict", "status", "forecast",
-                                         "expected_window", "rig_cycles", "cycle_verdict")] == [2, 1, 2, 1, 1, 1, 1, 2]
+                                         "expected_window", "rig_cycles", "cycle_verdict")] == [2, 1, 2, 1, 2, 1, 1, 2]
     assert SCHEMA_VERSION == current_version("sensor_chunk")  # what recording metadata says it holds
     readme = (schemas_dir() / "README.md").read_text()
     for name in files:
@@ -193,6 +193,27 @@ def test_a_health_verdict_of_an_older_version_is_read_and_a_newer_one_refused():
                                        schema=with_field.schema.append(pa.field("degradation", pa.float64())))
     with pytest.raises(DataError, match="fields must be among"):  # v1 does not declare it
         decode_batch(encode_batch(extra), HEALTH_VERDICT, "key/h")
+
+
+def test_a_forecast_names_the_part_it_may_be_and_an_older_version_is_read():
+    from hydrowatch.condition.forecast import Forecast
+    from hydrowatch.report.fleet_table import forecast_parts, wear_parts, wear_text
+    from hydrowatch.schemas import FORECAST
+    from hydrowatch.training.forecasts import MachineForecast
+    from hydrowatch.training.messages import forecast_batch
+
+    parts = {"relief_spring": Forecast(600.0, (480.0, 720.0), 1.2, "linear", 0.5, 80, None, None, "valve_coil"),
+             "load": Forecast(None, (None, None), 0.0, "linear", 0.01, 80, None, "too flat: no rise")}
+    v2 = forecast_batch(MachineForecast("f/m", 100.0, parts, 80), "sha256:x")
+    start, got = forecast_parts(decode_batch(encode_batch(v2), FORECAST, "f/m/forecast"))
+    assert start == 100.0 and got["relief_spring"]["untold_from"] == "valve_coil" and "untold_from" not in got["load"]
+    text = wear_text("relief_spring", wear_parts(None, got)["relief_spring"])
+    assert text.endswith("alert in 10 min (95 %: 8 min–12 min) (or valve_coil: not yet told apart)")
+    v1_schema = wire_schema(schema_by_name("forecast", 1))  # what a hydrowatch of before 2026-12-03 sends
+    v1 = pa.RecordBatch.from_pylist([{k: v for k, v in r.items() if k != "untold_from"} for r in v2.to_pylist()],
+                                    schema=v1_schema)
+    _, old = forecast_parts(decode_batch(encode_batch(v1), FORECAST, "f/m/forecast"))
+    assert old["relief_spring"]["alert_in_s"] == 600.0 and "untold_from" not in old["relief_spring"]
 
 
 def test_malformed_payload_names_the_field(chunk):

@@ -91,8 +91,9 @@ def summary_lines(info: dict[str, Any]) -> list[str]:
     if at_limit is not None and relief_barely_seen(at_limit):
         said.append(f"  the pump was at its limit (the relief shut) in {100 * at_limit:.0f} % of the samples: the "
                     "relief's gain is barely seen, and on this unit a weak relief spring may read as a weak valve "
-                    "coil: neither has a degradation index in early wear (below 0.25); commands that keep the "
-                    "valve's flow below the pump's (the relief open) would determine it")
+                    "coil: neither has a degradation index in early wear (below 0.25), and until told apart their "
+                    "forecasts share one index and name each other (untold_from); on simulated units a second "
+                    "recording with the relief open did not determine the gain (docs/degradation.md, Limits)")
     if unit["supply"] == "identified" and unit.get("left_to_prior"):
         kept = ", ".join(unit["left_to_prior"])
         said.append(f"  not informed by the recording, kept near the trained unit's values: {kept}")

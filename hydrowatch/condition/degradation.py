@@ -53,15 +53,13 @@ stops anywhere in a flat valley (pump_leak where the pump is far from its limit)
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import ATTRIBUTION_MARGIN as ATTRIBUTION_MARGIN  # the public names stay here
 from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_WINDOWS
-from hydrowatch.condition.attribution import NOMINAL_VALVE, confirmed, contenders, pool_median
+from hydrowatch.condition.attribution import LOOK_ALIKES, NOMINAL_VALVE, contenders, pool_median
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factors, with_brake
@@ -72,6 +70,7 @@ from hydrowatch.condition.capacity import (
     corrected,
     with_capacity,
 )
+from hydrowatch.condition.degradation_series import Degradation as Degradation  # the public name stays here
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
@@ -157,64 +156,6 @@ def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.nd
         hi = value + np.sqrt((high - value) ** 2 + sys**2)
     return np.clip(np.nan_to_num(lo, nan=-INDEX_CAP), -INDEX_CAP, INDEX_CAP), np.clip(
         np.nan_to_num(hi, nan=INDEX_CAP), -INDEX_CAP, INDEX_CAP)
-
-
-@dataclass(frozen=True)
-class Degradation:
-    """Index per fault and window with its 95 % interval: ``value``, ``low``, ``high``, each fault → (n,).
-
-    NaN where the window is invalid, the sensors cannot test the fault's relation, or the window's fit does not
-    determine the part (:data:`DETERMINED_STEP`). ``measured`` (fault → bool
-    (n,)) is False where the value is not the part's own estimate: a valve-side part another one was blamed for
-    (it reads 0 there).
-    """
-
-    value: Mapping[str, np.ndarray]
-    low: Mapping[str, np.ndarray]
-    high: Mapping[str, np.ndarray]
-    measured: Mapping[str, np.ndarray]
-    provisional: Mapping[str, np.ndarray] | None = None
-    """fault → (n,): the blamed valve-side part's own index where the pool could not yet tell it from a look-alike
-    (its ``value`` NaN there), NaN elsewhere; None: none kept."""
-    valid: np.ndarray | None = None
-    """(n,) bool: the windows the attribution pool counts (valid ones); None: every window."""
-    held: int = -1
-    """The valve-side part held after the last window (:func:`~.attribution.contenders`; −1: none): where an online
-    stream's next window starts."""
-
-    def history(self, fault: str, upto: int | None = None) -> np.ndarray:
-        """The part's own index, NaN elsewhere, shape (n,) (or (upto + 1,): as known at window ``upto``), with the
-        provisional values a later pool confirmed (:func:`~.attribution.confirmed`): what a forecast reads."""
-        end = self.value[fault].size if upto is None else upto + 1
-        own = np.where(self.measured[fault][:end], self.value[fault][:end], np.nan)
-        if self.provisional is None:
-            return own
-        valid = np.ones(end, dtype=bool) if self.valid is None else self.valid[:end]
-        own[valid] = confirmed(own[valid], self.provisional[fault][:end][valid])
-        return own
-
-    def ruled_out(self, fault: str, upto: int | None = None) -> bool:
-        """Whether the last valid window (up to ``upto``) rules the part out: a valve-side part another was blamed
-        for by the margin, reading 0 (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`)."""
-        rows = np.arange(self.value[fault].size) if self.valid is None else np.flatnonzero(self.valid)
-        rows = rows if upto is None else rows[rows <= upto]
-        return bool(rows.size) and not self.measured[fault][rows[-1]] and self.value[fault][rows[-1]] == 0.0
-
-    def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
-        """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
-        with ``measured`` each entry also says whether the value is the part's own estimate (what a forecast of
-        the machine's history reads, :meth:`history`)."""
-        out: dict[str, dict[str, Any]] = {
-            f: {"value": round(float(self.value[f][i]), 4),
-                "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
-            for f in self.value if np.isfinite(self.value[f][i])}
-        if measured:
-            for f, entry in out.items():
-                entry["measured"] = bool(self.measured[f][i])
-            for f, p in (self.provisional or {}).items():
-                if np.isfinite(p[i]):  # blamed, not yet told apart: for the forecast's history, not published
-                    out[f] = {"value": round(float(p[i]), 4), "measured": False, "provisional": True}
-        return out
 
 
 def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: PlantParameters, blocks: int,
@@ -331,7 +272,12 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         measured[fault][valid] = mine & ~unknown
         value[fault][valid], low[fault][valid], high[fault][valid] = (np.where(unknown, np.nan, x) for x in (v, lo, hi))
         provisional[fault][valid] = np.where(mine & determined & not_told, v, np.nan)
-    return Degradation(value, low, high, measured, provisional, valid, held)
+    pair = np.zeros(untold.shape, dtype=bool)
+    if relief_barely_seen:  # exactly the look-alike pair untold: it shares one index (degradation_series)
+        others = [j for j in range(len(parity.VALVE_HYPOTHESES)) if j not in LOOK_ALIKES]
+        pair = untold & contender[:, list(LOOK_ALIKES)].all(axis=1) & ~contender[:, others].any(axis=1)
+    shared = pair & np.isfinite(np.fmax(*(provisional[parity.VALVE_HYPOTHESES[j]] for j in LOOK_ALIKES)))
+    return Degradation(value, low, high, measured, provisional, valid, held, shared if shared.any() else None)
 
 
 def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hydrowatch.condition.degradation import SYSTEMATIC
+from hydrowatch.condition.degradation_series import Degradation
 from hydrowatch.condition.forecast_segment import operating_time, reset_start
 from hydrowatch.errors import DataError
 
@@ -120,6 +121,9 @@ class Forecast:
         Time of the window that started the current trend after a reset, s (None without a reset).
     reason : str or None
         Why there is no forecast.
+    untold_from : str or None
+        The part whose index this one's latest windows share (:meth:`~.degradation_series.Degradation.untold_from`):
+        the forecast is of this part *or* that one; None: told apart.
     """
 
     alert_in_s: float | None
@@ -130,6 +134,7 @@ class Forecast:
     points: int = 0
     reset_at_s: float | None = None
     reason: str | None = field(default=None)
+    untold_from: str | None = None
 
     def to_dict(self) -> dict[str, object]:
         """``score --json``'s summary entry: alert_in_s, ci95, rate_per_h (+ model, level, points, reset_at_s,
@@ -144,6 +149,8 @@ class Forecast:
                                   "reset_at_s": num(self.reset_at_s, 3)}
         if self.reason is not None:
             out["reason"] = self.reason
+        if self.untold_from is not None:
+            out["untold_from"] = self.untold_from
         return out
 
 
@@ -153,6 +160,18 @@ def ruled_out_forecast() -> Forecast:
     from them contradicted the index shown (docs/degradation.md, "The forecast")."""
     return Forecast(None, (None, None), float("nan"),
                     reason="ruled out: another valve-side part explains the latest windows")
+
+
+def part_forecast(t: np.ndarray, degradation: Degradation, fault: str, upto: int | None = None) -> Forecast:
+    """The forecast of one part from a machine's windows 0..``upto`` (start times ``t``, s), as the machine knew
+    them then: none where the latest window rules it out (:func:`ruled_out_forecast`), else
+    :func:`forecast_alert` of its history (:meth:`~.degradation_series.Degradation.history`), naming the part it
+    shares its index with there (``untold_from``)."""
+    if degradation.ruled_out(fault, upto):
+        return ruled_out_forecast()
+    end = t.size if upto is None else upto + 1
+    return replace(forecast_alert(np.asarray(t)[:end], degradation.history(fault, upto)),
+                   untold_from=degradation.untold_from(fault, upto))
 
 
 def _binned(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

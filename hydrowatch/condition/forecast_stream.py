@@ -10,8 +10,10 @@ gives it, :meth:`~hydrowatch.condition.degradation_stream.DegradationStream.upda
 (float64) and each part's index (float32: the index travels rounded to 1e-4, float32 keeps that exactly enough,
 ≤ 1e-6 at the index's scale of ≤ 10), NaN where the part's value was not its own estimate (a valve-side look-alike
 was blamed, :meth:`~hydrowatch.condition.degradation.Degradation.history`), and its provisional value where it was
-blamed before the pool could tell it apart (float32, kept until a later window confirms it). With the default
-:data:`HISTORY_WINDOWS` (1440: two hours of 5 s windows) that is 1440 × (8 + 2 × 6 × 4) B = 81 kB per machine. A
+blamed before the pool could tell it apart (float32, kept until a later window confirms it), and the index the relief
+spring and the coil share where a unit whose relief was barely seen cannot tell them apart (float32, one per window:
+:mod:`~hydrowatch.condition.degradation_series`). With the default :data:`HISTORY_WINDOWS` (1440: two hours of 5 s
+windows) that is 1440 × (8 + 2 × 6 × 4 + 4) B = 87 kB per machine. A
 forecast rests on at most that history, so it reaches at most :data:`~hydrowatch.condition.forecast.HORIZON_FACTOR`
 × its span ahead (20 h for two hours); a part wearing over days needs a longer ``capacity``.
 """
@@ -19,11 +21,13 @@ forecast rests on at most that history, so it reaches at most :data:`~hydrowatch
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from hydrowatch.condition.attribution import confirmed
+from hydrowatch.condition.degradation_series import SHARED_PAIR
 from hydrowatch.condition.forecast import Forecast, forecast_alert, ruled_out_forecast
 from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import ParameterError
@@ -52,6 +56,10 @@ class ForecastStream:
         self._index = Ring(self.capacity, (len(FAULTS),), np.float32)
         self._provisional = Ring(self.capacity, (len(FAULTS),), np.float32)
         """Each part's index where it was blamed but not yet told apart (``"provisional"`` entries), NaN elsewhere."""
+        self._shared = Ring(self.capacity, (), np.float32)
+        """The index :data:`~.degradation_series.SHARED_PAIR` shared in each window, NaN where none."""
+        self._untold: dict[str, str] = {}
+        """Each part of the pair the latest window that reads either shares its index with, and the other."""
         self._ruled_out: set[str] = set()
         """Valve-side parts the latest window rules out (another blamed by the margin): no forecast for them."""
         self._seen: set[str] = set()
@@ -64,15 +72,20 @@ class ForecastStream:
     @property
     def nbytes(self) -> int:
         """Bytes of the history's arrays."""
-        return int(self._t.nbytes + self._index.nbytes + self._provisional.nbytes)
+        return int(self._t.nbytes + self._index.nbytes + self._provisional.nbytes + self._shared.nbytes)
 
     def update(self, start_s: float, degradation: Mapping[str, Mapping[str, Any]]) -> None:
         """Add one valid window: its start time, s, and ``{fault: {"value", "measured", "provisional"}}``
         (``measured`` absent reads True; a ``provisional`` value waits for a later window to confirm it,
-        :func:`~hydrowatch.condition.attribution.confirmed`). Returns nothing."""
+        :func:`~hydrowatch.condition.attribution.confirmed`; one naming ``untold_from`` is the index the pair shares,
+        :meth:`~.degradation_series.Degradation.window`). Returns nothing."""
         row, waiting = (np.full(len(FAULTS), np.nan, dtype=np.float32) for _ in range(2))
-        self._ruled_out = {f for f, e in degradation.items()
-                           if not e.get("measured", True) and not e.get("provisional", False) and e["value"] == 0.0}
+        shared = {f: e for f, e in degradation.items() if e.get("untold_from")}
+        if any(f in degradation and np.isfinite(degradation[f]["value"]) for f in SHARED_PAIR):  # says which
+            self._untold = {g: h for f, e in shared.items() for g, h in ((f, e["untold_from"]), (e["untold_from"], f))}
+        self._seen.update(self._untold)
+        self._ruled_out = {f for f, e in degradation.items() if not e.get("measured", True)
+                           and not e.get("provisional", False) and e["value"] == 0.0} - set(self._untold)
         for j, fault in enumerate(FAULTS):
             entry = degradation.get(fault)
             if entry is None or not np.isfinite(entry["value"]):
@@ -86,12 +99,19 @@ class ForecastStream:
         self._t.add(start_s)
         self._index.add(row)
         self._provisional.add(waiting)
+        self._shared.add(np.float32(next(iter(shared.values()))["value"]) if shared else np.float32(np.nan))
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """The windows held in arrival order: start times (n,), s, and each part's history (n, len(FAULTS)), float64:
-        its own index, and its provisional values that a later window confirmed."""
+        its own index, its provisional values that a later window confirmed, and for the pair the index it shared
+        where it has none of its own (as :meth:`~.degradation_series.Degradation.history`)."""
         index, waiting = self._index.rows().astype(np.float64), self._provisional.rows().astype(np.float64)
-        return self._t.rows(), np.stack([confirmed(index[:, j], waiting[:, j]) for j in range(len(FAULTS))], axis=1)
+        pair = self._shared.rows().astype(np.float64)
+        out = np.stack([confirmed(index[:, j], waiting[:, j]) for j in range(len(FAULTS))], axis=1)
+        for f in SHARED_PAIR:
+            j = FAULTS.index(f)
+            out[:, j] = np.where(np.isnan(out[:, j]), pair, out[:, j])
+        return self._t.rows(), out
 
     def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
         """Each part seen: :func:`~hydrowatch.condition.forecast.forecast_alert` of its history (the defaults and
@@ -99,5 +119,6 @@ class ForecastStream:
         (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`). Changes nothing; ``{}`` before any window."""
         t, index = self.history()
         return {f: ruled_out_forecast() if f in self._ruled_out
-                else forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s)
+                else replace(forecast_alert(t, index[:, j], max_gap_s=max_gap_s, min_span_s=min_span_s),
+                             untold_from=self._untold.get(f))
                 for j, f in enumerate(FAULTS) if f in self._seen}

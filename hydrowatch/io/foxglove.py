@@ -19,7 +19,8 @@ declaration in ``schemas/`` (descriptions carry the units):
 - ``forecast`` → one message per forecast, log time = ``window_start`` (the start of the machine's last window
   with an index, which ``alert_in_s`` counts from): ``window_start`` [s], ``history_windows``,
   ``model_version`` and ``parts`` ({fault: {alert_in_s [s], low_s, high_s, rate_per_h [1/h], level, model,
-  points, reset_at [s], reason}}; null fields left out), so Foxglove plots ``….forecast.parts.load.alert_in_s``.
+  points, reset_at [s], reason, untold_from}}; null fields left out), so Foxglove plots
+  ``….forecast.parts.load.alert_in_s``.
 - ``expected`` → one message **per point** (a 0.1 s block mean), log time = the point's middle ``t`` =
   ``window_start + (i + ½)·step``: ``t``, ``window_start``, ``window_end``, ``step`` [s], ``model_version`` and
   ``sensors`` ({sensor: {measured, expected, source, unit}}; a non-finite value left out), so Foxglove plots
@@ -120,7 +121,7 @@ def forecasts(batch: pa.RecordBatch, where: str) -> Iterator[tuple[int, dict[str
     found: dict[tuple[float, int, str], dict[str, dict[str, Any]]] = {}
     for row in batch.to_pylist():
         parts = found.setdefault((row["window_start"], row["history_windows"], row["model_version"]), {})
-        parts[row["fault"]] = {k: row[k] for k in FORECAST_PART_FIELDS if _finite(row[k])}
+        parts[row["fault"]] = {k: row[k] for k in FORECAST_PART_FIELDS if _finite(row.get(k))}  # v1: no untold_from
     for (start, windows, version), parts in found.items():
         yield _ns(start, where, "window_start"), {"window_start": start, "history_windows": windows,
                                                   "model_version": version, "parts": parts}

@@ -14,7 +14,8 @@ from hydrowatch.schemas import schema_by_name
 KINDS: dict[str, str] = {"sensors": "sensor_chunk", "health": "health_verdict", "kl": "kl_window",
                          "forecast": "forecast", "expected": "expected_window", "cycle_health": "cycle_verdict"}
 """Topic kinds written for Foxglove → the hydrowatch schema of their messages."""
-FORECAST_PART_FIELDS = ("alert_in_s", "low_s", "high_s", "rate_per_h", "level", "model", "points", "reset_at", "reason")
+FORECAST_PART_FIELDS = ("alert_in_s", "low_s", "high_s", "rate_per_h", "level", "model", "points", "reset_at", "reason",
+                        "untold_from")
 """Fields of a ``forecast`` row kept under its part's ``fault`` (the others describe the forecast as a whole)."""
 EXPECTED_SENSOR_FIELDS = ("measured", "expected", "source", "unit")
 """Fields of an ``expected_window`` row kept under its ``sensor``, one point's value for the lists."""

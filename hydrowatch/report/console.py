@@ -86,8 +86,9 @@ def score_text(result: Mapping[str, Any]) -> str:
     for fault, f in (s.get("forecast") or {}).items():
         if f.get("alert_in_s") is not None:
             lo, hi = ("open" if v is None else v for v in f["ci95"])
+            either = f" (or {f['untold_from']}: not yet told apart)" if f.get("untold_from") else ""
             lines.append(f"  {fault}: alert in {f['alert_in_s']:.1f} operating s after the last window "
-                         f"(95 %: {lo}–{hi} s)")
+                         f"(95 %: {lo}–{hi} s){either}")
     return "\n".join(lines)
 
 

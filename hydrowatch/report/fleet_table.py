@@ -128,20 +128,22 @@ def verdict_rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
 def forecast_parts(batch: pa.RecordBatch) -> tuple[float | None, dict[str, dict[str, Any]]]:
     """A ``forecast`` message as ``score --json``'s summary ``forecast`` writes it: the start of the window it counts
     from, s (None for an empty message), and fault → ``{"alert_in_s", "ci95": [lo, hi], "rate_per_h", "level",
-    "model", "points", "reset_at_s"}`` (+ ``reason`` when there is no forecast)."""
+    "model", "points", "reset_at_s"}`` (+ ``reason`` when there is no forecast, ``untold_from`` when the part shares
+    its index with a look-alike)."""
     rows = batch.to_pylist()
     parts = {}
     for r in rows:
         part = {"alert_in_s": r["alert_in_s"], "ci95": [r.get("low_s"), r.get("high_s")],
                 "rate_per_h": r.get("rate_per_h"), "level": r.get("level"), "model": r["model"], "points": r["points"],
                 "reset_at_s": r.get("reset_at")}
-        if r.get("reason") is not None:
-            part["reason"] = r["reason"]
+        for key in ("reason", "untold_from"):  # untold_from: forecast v2
+            if r.get(key) is not None:
+                part[key] = r[key]
         parts[r["fault"]] = part
     return (float(rows[0]["window_start"]) if rows else None), parts
 
 
-FORECAST_KEYS = ("rate_per_h", "alert_in_s", "reason")
+FORECAST_KEYS = ("rate_per_h", "alert_in_s", "reason", "untold_from")
 """What a part's entry in :func:`wear_parts` takes from its forecast (its ``ci95`` becomes ``alert_ci95``)."""
 
 
@@ -234,6 +236,8 @@ def wear_text(fault: str, part: Mapping[str, Any]) -> str:
         lo, hi = part.get("alert_ci95") or (None, None)
         text += (f" alert in {duration_text(alert)} (95 %: {'0' if lo is None else duration_text(lo)}–"
                  f"{'open' if hi is None else duration_text(hi)})")
+        if part.get("untold_from"):
+            text += f" (or {part['untold_from']}: not yet told apart)"
     elif part.get("reason"):
         text += f" (no forecast: {str(part['reason']).split(':')[0]})"
     return text
@@ -244,7 +248,7 @@ def wear_cells(fault: str, part: Mapping[str, Any]) -> list[str]:
     (or why there is none); the words of :func:`wear_text`."""
     whole = wear_text(fault, {k: part.get(k) for k in ("value", "ci95")})
     rate = part.get("rate_per_h")
-    alert = wear_text("", {k: part.get(k) for k in ("alert_in_s", "alert_ci95", "reason")}).strip(" –")
+    alert = wear_text("", {k: part.get(k) for k in ("alert_in_s", "alert_ci95", "reason", "untold_from")}).strip(" –")
     return [fault, whole[len(fault) + 1:], "" if rate is None else f"{rate:+.2f}", alert]
 
 

@@ -68,6 +68,7 @@ def forecast_batch(item: MachineForecast, model_version: str) -> pa.RecordBatch:
         "rate_per_h": [d["rate_per_h"] for _, d in parts], "level": [d["level"] for _, d in parts],
         "model": [d["model"] for _, d in parts], "points": [d["points"] for _, d in parts],
         "reset_at": [d["reset_at_s"] for _, d in parts], "reason": [d.get("reason") for _, d in parts],
+        "untold_from": [d.get("untold_from") for _, d in parts],
         "history_windows": [item.history_windows] * n, "model_version": [model_version] * n,
     }
     return pa.RecordBatch.from_pydict(row, schema=wire_schema(FORECAST))

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from hydrowatch.condition.degradation import Degradation
-from hydrowatch.condition.forecast import forecast_alert, ruled_out_forecast
+from hydrowatch.condition.forecast import part_forecast
 from hydrowatch.errors import ParameterError
 from hydrowatch.methods.base import check_channels
 from hydrowatch.recording import SAMPLE_RATE_HZ, Recording
@@ -131,11 +131,10 @@ def degradation_forecast(windows: list[dict[str, Any]], degradation: Degradation
     is a physical estimate whatever the verdict, and an untrained fault wearing is exactly what must be forecast);
     windows where a valve-side look-alike was blamed are left out of that part's history
     (:meth:`~hydrowatch.condition.degradation.Degradation.history`), and a valve-side part the last window rules out
-    has none (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`)."""
+    has none (:func:`~hydrowatch.condition.forecast.part_forecast`); a part sharing its index with a look-alike says
+    so (``untold_from``)."""
     t = np.array([w["start_s"] for w in windows])
-    return {f: (ruled_out_forecast() if degradation.ruled_out(f)
-                else forecast_alert(t, degradation.history(f))).to_dict()
-            for f in degradation.value if np.isfinite(degradation.value[f]).any()}
+    return {f: part_forecast(t, degradation, f).to_dict() for f in degradation.parts()}
 
 
 def pooled_accuracy(results: list[dict[str, Any]]) -> tuple[float | None, list[str], list[str]]:

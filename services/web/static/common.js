@@ -28,7 +28,8 @@ function degradationHtml(d) {
     const ci = v && v.ci95 ? ` [${num(v.ci95[0])}–${num(v.ci95[1])}]` : "";
     const trend = v && v.rate_per_h != null ? ` ${v.rate_per_h >= 0 ? "↑" : "↓"}${Math.abs(v.rate_per_h).toFixed(2)}/h` : "";
     const soon = v && v.alert_in_s != null;
-    const alert = !soon ? "" : v.alert_in_s <= 0 ? " at alert" : ` alert in ${duration(v.alert_in_s)}`;
+    const either = soon && v.untold_from ? ` (or ${esc(v.untold_from)}: not yet told apart)` : "";
+    const alert = (!soon ? "" : v.alert_in_s <= 0 ? " at alert" : ` alert in ${duration(v.alert_in_s)}`) + either;
     const title = v && v.reason ? ` title="${esc(v.reason)}"` : "";
     return `<span class="deg${soon ? " soon" : ""}"${title}>${esc(fault)} ${num(value)}${ci}${trend}${alert}</span>`;
   }).join("");
