@@ -50,3 +50,24 @@ def test_fits_of_another_draw_or_other_code_are_refused(stored, monkeypatch):
     monkeypatch.setattr(F, "fingerprint", lambda: "0" * 64)
     with pytest.raises(ValueError, match=f"{path.name}.*fits otherwise"):
         F.load_fits(path, draws[0])
+
+
+def test_a_kept_relief_shut_screen_draws_its_units_without_screening_again(tmp_path, monkeypatch):
+    # the screen's unit numbers, kept beside the fits by the code that screened: the same draws as the seed's own,
+    # no unit simulated; kept by other code (another fingerprint), the screen runs again
+    monkeypatch.setattr(F, "fingerprint", lambda: "a" * 64)
+    kept = tmp_path / f"seed5_relief_shut_{HOURS:g}h.json"
+    kept.write_text(json.dumps({"fingerprint": "a" * 64, "units": [1, 3]}))
+    rng = np.random.default_rng(5)
+    want = [F.draw_unit(k, rng, HOURS) for k in range(4)]
+
+    def screened(*_):
+        raise AssertionError("screened again")
+
+    monkeypatch.setattr(F, "_true_share", screened)
+    got = F.relief_shut_units(5, 2, HOURS, folder=tmp_path)
+    assert [k for k, _ in got] == [1, 3]
+    assert [F._draw_summary(d) for _, d in got] == [F._draw_summary(want[1]), F._draw_summary(want[3])]
+    monkeypatch.setattr(F, "fingerprint", lambda: "b" * 64)
+    with pytest.raises(AssertionError, match="screened again"):
+        F.relief_shut_units(5, 2, HOURS, folder=tmp_path)
