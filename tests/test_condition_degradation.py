@@ -7,6 +7,7 @@ import pytest
 
 from hydrowatch.condition import ConditionFeatures
 from hydrowatch.condition.attribution import (
+    BARELY_SEEN_LEVEL,
     EARLY_LEVEL,
     EARLY_MARGIN,
     HELD_MARGIN,
@@ -455,6 +456,14 @@ def test_where_the_commissioning_barely_saw_the_relief_its_early_wear_is_not_tol
     other[:, leak], other[:, coil] = 0.0, 50.0
     near, _ = contenders(other, np.full(n, 0.18), relief_barely_seen=True)
     assert (near.sum(axis=1) == 1).all()
+    # between the early level and the warning, such a unit's pool needs the early margin: the coil ahead of the
+    # relief by 5 nats at 0.3 is told apart elsewhere, not there; at 0.6 it is on both
+    ahead = np.full((2, 4), 50.0)
+    ahead[:, coil], ahead[:, relief] = 0.0, 5.0
+    assert ATTRIBUTION_MARGIN < 5.0 < EARLY_MARGIN and EARLY_LEVEL < 0.3 < BARELY_SEEN_LEVEL < 0.6
+    for barely, told in ((False, [True, True]), (True, [False, True])):
+        near, _ = contenders(ahead, np.array([0.3, 0.6]), relief_barely_seen=barely)
+        assert ((near.sum(axis=1) == 1) == told).all(), barely
     assert relief_barely_seen(RELIEF_SHUT_SHARE) and not relief_barely_seen(0.49) and not relief_barely_seen(None)
 
 

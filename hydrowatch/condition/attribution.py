@@ -49,6 +49,12 @@ while worn, at :data:`EARLY_LEVEL` or more) to be told apart from it, at any lev
 same windows for 60 windows; a look-alike that overtakes it by 3–5 nats for a few windows beyond the alert read
 the coil 1.33–1.36 on a relief spring blamed for the 200 windows before (tuning seeds 2089 unit 3 and 2093 unit 3)."""
 
+BARELY_SEEN_LEVEL = 0.5
+"""On a unit whose commissioning barely saw the relief, the index (blamed part, pool median) below which the pool
+must tell it apart by :data:`EARLY_MARGIN`: up to the warning, not :data:`EARLY_LEVEL`. There the relief spring and
+the coil stay look-alikes past 0.25: on the 32 such units of seeds 3001–3008 the coil was told apart on 4 relief paths
+at 0.31–0.49 by 3–7 nats (up to 2.4 % of a path's windows, one false forecast); with 7 up to 0.5 none, and 10 of 32
+relief forecasts at the warning say "or valve_coil" (3 before; docs/degradation.md, "A relief barely seen")."""
 EARLY_LEVEL = 0.25
 """Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
 runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
@@ -145,8 +151,9 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     :data:`~hydrowatch.condition.unit_checks.RELIEF_SHUT_SHARE` of its samples or more: its relief gain Kr is
     uncertain) the relief spring and the coil are each other's contenders while the blamed one of them is below
     :data:`EARLY_LEVEL`, whatever the excess: the relief hypothesis, fitted with a wrong Kr, explains the relief's own
-    early wear worse than the coil does (docs/degradation.md, "A relief barely seen"); ``blamed`` (shape (n,), −1:
-    invalid) is the part with no excess, found from ``excess`` when not given.
+    early wear worse than the coil does (docs/degradation.md, "A relief barely seen"); and the margin is
+    :data:`EARLY_MARGIN` up to :data:`BARELY_SEEN_LEVEL`; ``blamed`` (shape (n,), −1: invalid) is the part with no
+    excess, found from ``excess`` when not given.
     """
     lv = np.asarray(level, dtype=np.float64)
     if excess is None:
@@ -154,6 +161,9 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     with np.errstate(invalid="ignore"):
         worn = lv >= EARLY_LEVEL
     margin = np.where(worn, ATTRIBUTION_MARGIN, EARLY_MARGIN)
+    if relief_barely_seen:
+        with np.errstate(invalid="ignore"):
+            margin = np.where(lv >= BARELY_SEEN_LEVEL, margin, EARLY_MARGIN)
     near = np.asarray(excess) < margin[:, None]
     if relief_barely_seen:
         if blamed is None:
