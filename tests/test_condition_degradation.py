@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydrowatch.condition import ConditionFeatures
+from hydrowatch.condition import ConditionFeatures, attribution
 from hydrowatch.condition.attribution import (
     BARELY_SEEN_LEVEL,
     EARLY_LEVEL,
@@ -130,15 +130,44 @@ def test_valve_attribution_blames_the_part_whose_windows_agree_on_one_severity()
     valid = np.ones(n, dtype=bool)
     assert set(attributed_valve_fault(severity, mse, curvature, valid, pool=1).tolist()) == {1}  # window by window
     pooled = attributed_valve_fault(severity, mse, curvature, valid, pool=6)
-    assert pooled[:2].tolist() == [1, 1]  # one or two windows: a line through them explains any severities
-    assert (pooled[2:] == 2).all()
+    assert pooled[:3].tolist() == [1, 1, 1]  # up to three windows: a parabola through them explains any severities
+    assert (pooled[3:] == 2).all()
     # the misfit: Σ log(MSE + c·(ŝ − trend)²); a steady trend costs nothing beyond the free fits
     assert pool_misfit(severity["valve_coil"][:6], mse["valve_coil"][:6], curvature["valve_coil"][:6]) == (
         pytest.approx(6 * np.log(1.0)))
     x, jumpy = np.arange(6.0), severity["relief_spring"][:6]
-    r = jumpy - np.polyval(np.polyfit(x, jumpy, 1), x)  # equal weights c / MSE: the ordinary least-squares line
+    r = jumpy - np.polyval(np.polyfit(x, jumpy, 2), x)  # equal weights c / MSE: the ordinary least-squares parabola
     assert pool_misfit(jumpy, mse["relief_spring"][:6], curvature["relief_spring"][:6]) == pytest.approx(
         np.sum(np.log(0.9 + 10.0 * r**2))) and np.sum(np.log(0.9 + 10.0 * r**2)) > 0.0
+
+
+def test_a_wear_that_stops_inside_the_pool_keeps_the_pool_on_the_worn_part(monkeypatch):
+    """The pool's trend is a parabola (TREND_DEGREE): a wear whose rate changes inside the pool's 300 s costs the
+    worn part little. Measured case (flagged unit 3007/19): a relief spring whose wear stopped at 1.30, its fits
+    better than the coil's but precise (se 0.005), paid the kink's trend cost and lost its pool to the coil."""
+    n = 60
+    x = np.arange(n, dtype=float)
+    m, c = np.ones(n), np.full(n, 1.0 / 0.005**2)  # se(ŝ) = √(MSE / c) = 0.005
+    # known truth: a severity on a parabola (wear slowing to a stop at the pool's end) costs nothing beyond the
+    # free fits; a straight line charges it; degree 1 is the weighted least-squares line
+    slowing = 0.525 - 0.095 * (1.0 - x / (n - 1)) ** 2
+    assert pool_misfit(slowing, m, c) == pytest.approx(0.0, abs=1e-6)
+    line = np.polyval(np.polyfit(x, slowing, 1), x)
+    assert pool_misfit(slowing, m, c, degree=1) == pytest.approx(np.sum(np.log(1.0 + c * (slowing - line) ** 2)))
+    assert pool_misfit(slowing, m, c, degree=1) > 20.0
+    # the measured shape, a ramp that stops two thirds into the pool: the parabola charges a third of the line
+    hinge = np.where(x < 40, 0.43 + 0.095 * x / 40, 0.525)
+    assert pool_misfit(hinge, m, c) < 0.4 * pool_misfit(hinge, m, c, degree=1)
+    # in the attribution: the coil explains each window 10 % worse, on a straight trend of its own
+    severity = {f: np.full(n, 0.3) for f in VALVE_HYPOTHESES}
+    severity["relief_spring"], severity["valve_coil"] = slowing, np.linspace(0.3, 0.39, n)
+    mse = {f: np.full(n, 3.0) for f in VALVE_HYPOTHESES}
+    mse["relief_spring"], mse["valve_coil"] = m, 1.1 * m
+    curvature = {f: c.copy() for f in VALVE_HYPOTHESES}
+    valid = np.ones(n, dtype=bool)
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n)[-1] == 1
+    monkeypatch.setattr(attribution, "TREND_DEGREE", 1)
+    assert attributed_valve_fault(severity, mse, curvature, valid, pool=n)[-1] == 2  # stop 58's line: the coil
 
 
 def test_a_window_between_nominal_and_its_fit_costs_the_pool_at_most_its_nominal_mse():
@@ -162,7 +191,7 @@ def test_a_window_between_nominal_and_its_fit_costs_the_pool_at_most_its_nominal
     bounded = pool_misfit(s, m, c, nominal)
     # the trend: weighted least squares (weights c / MSE), near the cracking windows' 0.07
     x = np.arange(n, dtype=float)
-    line = np.polyval(np.polyfit(x, s, 1, w=np.sqrt(c / m)), x)
+    line = np.polyval(np.polyfit(x, s, 2, w=np.sqrt(c / m)), x)
     assert unbounded == pytest.approx(np.sum(np.log(m + c * (s - line) ** 2)))
     assert bounded == pytest.approx(np.sum(np.log(np.where(limited, 1.0, m + c * (s - line) ** 2))))
     assert np.all(np.abs(line - 0.07) < 0.01) and unbounded - bounded > 3.0
@@ -172,7 +201,7 @@ def test_a_window_between_nominal_and_its_fit_costs_the_pool_at_most_its_nominal
     # and the fits at 0.1 (bounded to their nominal MSE, = MSE_min: no cost) and on the other side of 0 from the
     # fits at -0.02 (the parabola's cost)
     jumpy = np.tile([-0.02, 0.1], 3)
-    line = np.polyval(np.polyfit(np.arange(6.0), jumpy, 1), np.arange(6.0))
+    line = np.polyval(np.polyfit(np.arange(6.0), jumpy, 2), np.arange(6.0))
     assert np.all((line > 0.0) & (line < 0.1))
     assert pool_misfit(jumpy, np.ones(6), np.full(6, 10.0), np.ones(6)) == pytest.approx(
         np.sum(np.where(jumpy < 0.0, np.log(1.0 + 10.0 * (jumpy - line) ** 2), 0.0)))
@@ -264,10 +293,11 @@ def test_index_on_a_simulated_unit_matches_the_true_speed_drop_and_its_interval_
         others = [f for f in FAULTS if f != fault]
         assert max(np.nanmax(np.abs(d.value[f])) for f in others) < 0.15, fault
     coil = features_degradation(features, windows[3])
-    # a pool of its first 1-5 windows does not yet tell the worn coil from a look-alike: no index there
-    assert np.flatnonzero(~coil.measured["valve_coil"]).tolist() == [0, 1, 2, 3, 4] and coil.measured["load"].all()
+    # a pool of its first 1-8 windows does not yet tell the worn coil from a look-alike (a parabola through three
+    # windows explains any severities; stop 58's straight line: 1-5): no index there
+    assert np.flatnonzero(~coil.measured["valve_coil"]).tolist() == list(range(8)) and coil.measured["load"].all()
     for look_alike in ("pump_leak", "relief_spring", "valve_leak"):  # not the worn part: never history; 0 once told
-        assert not coil.measured[look_alike].any() and np.all(coil.value[look_alike][5:] == 0.0)
+        assert not coil.measured[look_alike].any() and np.all(coil.value[look_alike][8:] == 0.0)
         assert np.isnan(coil.history(look_alike)).all()
     healthy = features_degradation(features, windows[0])
     assert max(np.max(np.abs(healthy.value[f])) for f in FAULTS) < 0.1

@@ -32,11 +32,56 @@ def test_linear_wear_with_outliers_and_invalid_windows():
     v = _noisy(0.6 * t / 3600.0, 1, outliers=0.05)
     v[np.random.default_rng(2).random(t.size) < 0.2] = np.nan  # invalid / unknown windows
     f = forecast_alert(t, v)
-    truth = 6000.0 - t[np.isfinite(v)][-1]
+    truth = 6000.0 - t[-1]  # counted from the last window given, with an index or not
     assert f.model == "linear" and f.alert_in_s == pytest.approx(truth, rel=0.1)
     assert f.ci95[0] <= truth <= f.ci95[1] and f.ci95[1] - f.ci95[0] < 0.5 * truth
     assert f.rate_per_h == pytest.approx(0.6, rel=0.1)
     assert json.loads(json.dumps(f.to_dict()))["alert_in_s"] == pytest.approx(f.alert_in_s, abs=0.1)
+
+
+def test_the_time_to_alert_counts_from_the_machines_last_window_not_the_parts_last_index():
+    """alert_in_s counts from the last window given (``window_start``, the machine's now): a part whose latest
+    windows have no index (not told from a look-alike, 10 windows before its warning on flagged unit 3003/41) is
+    forecast from its history, but the time elapsed since its last index is not ahead any more. Before stop 59 it
+    counted from the part's last index: 50 s late there, read as 620 s for a true 497."""
+    t = np.arange(0.0, 3000.0, HOP)  # linear wear 0 -> 0.5 over 3000 s: alert at 6000 s
+    v = _noisy(0.5 * t / 3000.0, 4, sigma=0.005)
+    full = forecast_alert(t, v)
+    held = v.copy()
+    held[-24:] = np.nan  # the last 2 minutes without this part's index; the machine's windows go on
+    late = forecast_alert(t, held)
+    assert full.alert_in_s == pytest.approx(6000.0 - t[-1], rel=0.03)
+    assert late.alert_in_s == pytest.approx(6000.0 - t[-1], rel=0.03)
+    last = t[np.isfinite(held)][-1]
+    assert late.alert_in_s < 6000.0 - last - 100.0  # not from the part's last index (120 s before)
+    assert late.ci95[0] <= 6000.0 - t[-1] <= late.ci95[1]
+    # a clock that jumps a day after the last index counts one hop of operation there, as in the history
+    jumped = t.copy()
+    jumped[-24:] += 86400.0
+    assert forecast_alert(jumped, held).alert_in_s == pytest.approx(late.alert_in_s, abs=1e-6)
+    # a part already at its alert by the last window given reads 0
+    ahead = forecast_alert(np.r_[t, t[-1] + HOP * np.arange(1, 700)], np.r_[v, np.full(699, np.nan)])
+    assert ahead.alert_in_s == 0.0 and ahead.ci95[0] == 0.0
+
+
+def test_a_files_forecast_counts_from_its_last_valid_window():
+    """``score --json``'s forecast of a file whose last windows are invalid (a sensor dropped out) counts from the
+    last valid window, the machine's last window with an index; up to a window, from the last valid one before it."""
+    from hydrowatch.condition.degradation_series import Degradation
+    from hydrowatch.condition.forecast import part_forecast
+
+    t = np.arange(0.0, 3000.0, HOP)
+    value = _noisy(0.5 * t / 3000.0, 5, sigma=0.005)
+    valid = np.ones(t.size, dtype=bool)
+    valid[-60:] = False  # the last 5 minutes invalid
+    value[~valid] = np.nan
+    d = Degradation({"load": value}, {"load": value - 0.05}, {"load": value + 0.05}, {"load": valid.copy()},
+                    valid=valid)
+    last = t[valid][-1]
+    f = part_forecast(t, d, "load")
+    assert f.alert_in_s == pytest.approx(forecast_alert(t[valid], value[valid]).alert_in_s, rel=1e-9)
+    assert f.alert_in_s == pytest.approx(6000.0 - last, rel=0.03)
+    assert part_forecast(t, d, "load", upto=t.size - 10).alert_in_s == pytest.approx(f.alert_in_s, rel=1e-9)
 
 
 def test_exponential_wear_is_fitted_as_exponential():

@@ -72,6 +72,16 @@ halved those windows' MSE on a healthy machine, and took a wearing relief spring
 told apart until the relief's warning, and its forecast had no history ("too short"). Chosen offline on the stored
 window fits of tuning seeds 2074 and 2081 (16 units, 96 paths; docs/degradation.md): paths with another part above
 0.15 at 1 (before) 9, at 0.5 6, at 0.3 3, at 0.2 3 with one forecast 53 % late."""
+TREND_DEGREE = 2
+"""Degree of the severity trend a pool's windows must share (:func:`pool_misfit`): a parabola, so that wear whose
+rate changes inside the pool's 300 s (accelerating, or stopping) costs the worn part little. With a straight line
+(before stop 59) a relief spring whose wear stopped at 1.30 lost its pool to the coil by up to 17.7 nats, its
+better free fits (Σ log MSE 8.3 nats below the coil's) outweighed by the kink's trend cost (68.7 against the
+noisier coil's 42.6), and the coil read 1.28–1.31 (flagged unit 3007/19); with the parabola the coil beat it by
+7.0 at most, within :data:`HELD_MARGIN`. On the stored window fits of 40 flagged units (3001–3010, where it was
+found: tuning) paths with another part above 0.15 2 → 0 of 240; on 8 regular units (2098/2099) every figure within
+a point; a steady worn part is told apart after 8 windows instead of 5 (docs/degradation.md, "A wear that stops
+inside the pool")."""
 NOMINAL_VALVE = "valve_nominal"
 """Key, in :class:`~hydrowatch.condition.estimates.ParityEstimates`' MSEs, of the valve relation's MSE with every
 valve-side part at nominal (severity 0, the P̂L noise's share taken out as in the fits): the same model for all four
@@ -79,14 +89,16 @@ hypotheses, and what :func:`pool_misfit` bounds a window's cost by between nomin
 
 
 def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
-                nominal: np.ndarray | None = None, say: np.ndarray | None = None) -> np.ndarray:
+                nominal: np.ndarray | None = None, say: np.ndarray | None = None, *,
+                degree: int | None = None) -> np.ndarray:
     """Σ log MSE of one valve-side hypothesis over a pool of consecutive valid windows that share one severity trend.
 
     Each window's free fit gives MSE(s) ≈ MSE_min + c·(s − ŝ)² (:class:`~hydrowatch.condition.estimates.
     ParityEstimates`). A part wears slowly against the pool's 300 s, so the pool's windows should agree on one
-    severity (a straight line in the window's place x, weighted least squares of the ŝ with weights c / MSE_min);
-    the misfit is Σ log(MSE_min + c·(ŝ − trend)²). A look-alike hypothesis explains each window on its own, as well
-    as the worn part or better, but only with a severity that moves with the command (docs/degradation.md).
+    severity trend (a polynomial of :data:`TREND_DEGREE` in the window's place x, weighted least squares of the ŝ
+    with weights c / MSE_min); the misfit is Σ log(MSE_min + c·(ŝ − trend)²). A look-alike hypothesis explains
+    each window on its own, as well as the worn part or better, but only with a severity that moves with the
+    command (docs/degradation.md).
 
     With ``nominal`` (each window's MSE at severity 0, :data:`NOMINAL_VALVE`), a window whose trend lies between 0
     and its fit costs at most that: a cost with one valley at ŝ is nowhere between nominal and ŝ above its value at
@@ -103,27 +115,35 @@ def pool_misfit(severity: np.ndarray, mse: np.ndarray, curvature: np.ndarray,
     say : ndarray, shape (..., L), optional
         Each window's say in [0, 1] (:func:`say_of`): its log cost and its weight in the trend are scaled by it
         (None: 1 for every window).
+    degree : int, optional
+        Degree of the pool's severity trend in the window's place (None: :data:`TREND_DEGREE`).
 
     Returns
     -------
     ndarray, shape (...,)
     """
     s, m, c = np.asarray(severity, dtype=np.float64), np.maximum(mse, 1e-300), np.maximum(curvature, 0.0)
-    x = np.arange(s.shape[-1], dtype=np.float64)
     weight = np.ones_like(s) if say is None else np.nan_to_num(np.asarray(say, dtype=np.float64), nan=1.0)
     w = weight * c / m + 1e-12  # a window that does not determine the part hardly moves the trend
-    total = w.sum(axis=-1, keepdims=True)
-    dx = x - (w * x).sum(axis=-1, keepdims=True) / total
-    level = (w * s).sum(axis=-1, keepdims=True) / total
-    sxx = (w * dx**2).sum(axis=-1, keepdims=True)
-    slope = (w * dx * (s - level)).sum(axis=-1, keepdims=True) / np.maximum(sxx, 1e-300)
-    trend = level + slope * dx
+    trend = _trend(s, w, TREND_DEGREE if degree is None else degree)
     cost = m + c * (s - trend) ** 2
     if nominal is not None:
         between = (trend * s >= 0.0) & (np.abs(trend) <= np.abs(s))
         bound = np.maximum(np.nan_to_num(np.asarray(nominal, dtype=np.float64), nan=np.inf), m)
         cost = np.where(between, np.minimum(cost, bound), cost)
     return (weight * np.log(cost)).sum(axis=-1)
+
+
+def _trend(severity: np.ndarray, weight: np.ndarray, degree: int) -> np.ndarray:
+    """Weighted least-squares polynomial of ``degree`` (at most L − 1) through each pool's severities in the
+    window's place, evaluated there, shape (..., L)."""
+    n = severity.shape[-1]
+    u = (np.arange(n, dtype=np.float64) - (n - 1) / 2.0) / max((n - 1) / 2.0, 1.0)  # place in [-1, 1]
+    basis = u[:, None] ** np.arange(min(degree, n - 1) + 1)  # (L, k)
+    weight = weight / np.max(weight, axis=-1, keepdims=True)  # weights 1e-12 to 1e300 apart: scaled, and a ridge
+    normal = np.einsum("...l,lk,lj->...kj", weight, basis, basis) + 1e-12 * np.eye(basis.shape[1])
+    moment = np.einsum("...l,lk,...l->...k", weight, basis, severity)
+    return np.einsum("...k,lk->...l", np.linalg.solve(normal, moment[..., None])[..., 0], basis)
 
 
 def pool_median(severity: np.ndarray, pool: int = ATTRIBUTION_WINDOWS) -> np.ndarray:

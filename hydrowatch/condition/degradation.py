@@ -29,7 +29,7 @@ separate one-parameter hypotheses of one relation; in a hold at one command seve
 better (a valve_coil hypothesis for a weak relief spring). But a part wears slowly: over the machine's last
 :data:`ATTRIBUTION_WINDOWS` valid windows the worn part's fits agree on one severity trend, while a look-alike needs
 a severity that moves with the command. The hypothesis with the smallest :func:`pool_misfit` (Σ log MSE when the
-pool shares one straight severity trend) is the worn part and gets its index; the others read 0 with an
+pool shares one severity trend, a parabola in time) is the worn part and gets its index; the others read 0 with an
 interval that spans 0 and their own one-hypothesis interval (what they would be if they were the cause). When the
 runner-up is within :data:`ATTRIBUTION_MARGIN` of it, the pool does not tell which part wears: from
 :data:`UNTOLD_LEVEL` on, every part the pool cannot rule out (its misfit within the margin of the best) then has no
@@ -115,6 +115,10 @@ such windows median +0.13, +0.10, −0.05 and −0.06 on 2093 unit 3, 3001 units
 medians of −0.01 to +0.02 in the same paths' windows below it (shares 0–0.99 alike). Without them: on tuning
 2086–2093 the worst coil MAE 0.043 → 0.020; on 8 units whose commissioning barely saw the relief (3001/3002) coil
 forecasts within ±20 % 5 → 8 of 8 (docs/degradation.md, "The coil at the pump's limit")."""
+
+
+AT_LIMIT_PARTS: tuple[str, ...] = ("valve_coil",)
+"""Parts a window with θ0's pump at its limit throughout (:data:`COIL_AT_LIMIT`) does not determine."""
 
 
 def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantParameters) -> np.ndarray:
@@ -238,7 +242,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         s = own.severity[fault]
         se = severity_standard_error(mse[fault], own.curvature[fault], blocks)
         determined = own.curvature[fault] * DETERMINED_STEP**2 >= mse[fault]
-        if fault == "valve_coil" and PUMP_LIMITED in own.severity:  # the coil trades with θ0's capacity there
+        if fault in AT_LIMIT_PARTS and PUMP_LIMITED in own.severity:  # it trades with θ0's capacity there
             determined &= ~(own.severity[PUMP_LIMITED] >= COIL_AT_LIMIT)
         stack, q = np.stack([s, s - Z95 * se, s + Z95 * se]), np.zeros_like(s)
         if fault == "pump_leak":  # on θ0 with the capacity the machine's history gives; none yet: not determined

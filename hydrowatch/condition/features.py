@@ -41,10 +41,9 @@ import numpy as np
 from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
 from hydrowatch.condition import ratios as R
-from hydrowatch.condition.features_evidence import RELIEF_LIMITS, EvidenceRows
+from hydrowatch.condition.features_evidence import EvidenceRows
 from hydrowatch.condition.features_store import features_from_dict, features_to_dict
-from hydrowatch.condition.oil import OIL_RANGE, leakage_range, motor_oil_box, oil_box, oil_parts
-from hydrowatch.condition.relief import LoadScale, free_relief, scaled_load_box, window_factors
+from hydrowatch.condition.oil import OIL_RANGE, oil_parts
 from hydrowatch.condition.standstill import without_load_relation
 from hydrowatch.condition.unit import UnitFit, identify_unit, left_to_prior
 from hydrowatch.condition.unit_checks import capacity_determined
@@ -56,11 +55,9 @@ from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.recording import SENSORS
 
 _log = get_logger(__name__)
-BAND_MARGIN = 0.05
-"""Relative widening of each severity band (the band edges are physics, the level is fitted)."""
 
 
-class ConditionFeatures(EvidenceRows):
+class ConditionFeatures(EvidenceRows):  # and StateBoxes, through EvidenceRows
     """Per-window, per-state parity scores (or raw parity severities) of raw signal windows.
 
     Parameters
@@ -257,23 +254,6 @@ class ConditionFeatures(EvidenceRows):
         out.unit_ = unit.summary()
         return out
 
-    def _box(self, state: str, p: PlantParameters, narrow: bool = False,
-             margin: float = 0.0) -> dict[str, tuple[float, float]]:
-        """A state's band box (``margin`` widens its own fault's band further), or with ``narrow`` its level box."""
-        box = R.state_box(state, self.levels_.get(state, 0.0), p, self.tolerance, self.level_width, narrow,
-                          BAND_MARGIN + margin)
-        return free_relief(box, self.relief_spread_) if self._follows_relief(state) else box
-
-    def _follows_relief(self, state: str) -> bool:
-        """Whether ``state`` is a load state on a unit whose relief commissioning left open (module relief)."""
-        return getattr(self, "relief_spread_", 0.0) > 0.0 and parse_state(state)[0] == "load"
-
-    def _load_scale(self) -> LoadScale:
-        """The load levels' factor at each relief (:class:`~hydrowatch.condition.relief.LoadScale`), made once."""
-        if getattr(self, "_scale", None) is None:
-            self._scale = LoadScale(self.nominal_, self.relief_spread_)
-        return self._scale
-
     def _names(self) -> list[str]:
         return [f"{r}|{k}" for r in self.relations_ for k in self.states_]
 
@@ -294,15 +274,6 @@ class ConditionFeatures(EvidenceRows):
         window without it (4 channels, or the temperature all NaN) goes as 4 channels (boxes: :meth:`_box_of`)."""
         self._check_fitted()
         return oil_parts(L.check_windows(windows, self.window), L.WIDTH)
-
-    def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]:
-        """(band, level) boxes of every state that pooling clips to (``evidence_layout``); for windows without the oil
-        temperature widened by the whole ``oil_range`` (per window, :meth:`_box_of` narrows them by the motor's oil)."""
-        if temperature or self.oil_range == 0.0:
-            return self.boxes_, self.level_boxes_
-        factors = leakage_range(self.viscosity_coefficient, self.oil_range)
-        return tuple({s: oil_box(b, self.nominal_, factors) for s, b in boxes.items()}
-                     for boxes in (self.boxes_, self.level_boxes_))
 
     def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[R.FillGroup]]:
         """Valid-window mask (n,) and the fill groups of the valid windows (nominal fill first; [] if none valid)
@@ -359,28 +330,6 @@ class ConditionFeatures(EvidenceRows):
         for part in ratios:
             without_load_relation(part, self.feature_names_, stalled)
         return ratios, free, others
-
-
-    def _box_of(self, state: str, box: Mapping[str, tuple[float, float]], known: bool = True) -> R.BoxOf:
-        """``box`` as the windows judge it: without the oil temperature its leak ranges widened by the oil's range
-        (:mod:`hydrowatch.condition.oil`), per window by what the motor's leakage tells of the oil unless the state
-        is a motor leak (:func:`~hydrowatch.condition.oil.motor_factors`); for a state that follows the relief, its
-        load range scaled by each window's relief."""
-        oil = None if known or self.oil_range == 0.0 else leakage_range(self.viscosity_coefficient, self.oil_range)
-        if oil is not None and parse_state(state)[0] == "motor_leak":  # its motor path is the fault: the whole range
-            box, oil = oil_box(box, self.nominal_, oil), None
-        scale = self._load_scale() if self._follows_relief(state) else None
-        if oil is None and scale is None:
-            return box
-        p, blocks = self.nominal_, (self.window - 1) // E.parity.BLOCK
-
-        def of(est: E.ParityEstimates) -> R.Box:
-            out: R.Box = box if oil is None else motor_oil_box(
-                box, p, est.severity["motor_leak"],
-                E.severity_standard_error(est.mse["motor"], est.curvature["motor_leak"], blocks), oil)
-            return out if scale is None else scaled_load_box(out, *window_factors(
-                scale, est.severity["relief_spring"], est.curvature["relief_spring"], RELIEF_LIMITS)[:2])
-        return of
 
     def window_reasons(self, windows: np.ndarray) -> list[str | None]:
         """Why each raw window (n_windows, window, 4) cannot be judged, or None.

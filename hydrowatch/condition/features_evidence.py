@@ -17,22 +17,18 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition import layout as L
 from hydrowatch.condition import ratios as R
 from hydrowatch.condition.evidence import STATE_COLUMNS, EvidenceLayout
+from hydrowatch.condition.features_boxes import RELIEF_LIMITS, StateBoxes
 from hydrowatch.condition.oil import temperature_known
 from hydrowatch.condition.relief import window_factors
 from hydrowatch.condition.standstill import stalled
 from hydrowatch.plant.faults import FAULTS, parse_state
 from hydrowatch.plant.parameters import PlantParameters
 
-if TYPE_CHECKING:
-    from hydrowatch.condition.relief import LoadScale
-
 RELATION_OF: dict[str, str] = {"load": "load", "motor_leak": "motor", **{f: "valve" for f in E.parity.VALVE_HYPOTHESES}}
 """The relation in which each fault's parameter appears."""
-RELIEF_LIMITS = E.parity.SEVERITY_LIMITS["relief_spring"]
-"""The relief fit's search range (:func:`hydrowatch.condition.relief.determined`)."""
 
 
-class EvidenceRows:
+class EvidenceRows(StateBoxes):
     """The evidence methods of :class:`~hydrowatch.condition.features.ConditionFeatures` (a mixin)."""
 
     states_: tuple[str, ...]
@@ -44,11 +40,8 @@ class EvidenceRows:
         def _check_fitted(self) -> None: ...
         def _by_oil(self, windows: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]: ...
         def _estimates(self, w: np.ndarray) -> tuple[np.ndarray, list[R.FillGroup]]: ...
-        def _box_sets(self, temperature: bool) -> tuple[dict[str, dict[str, tuple[float, float]]], ...]: ...
         def _ratios(self, groups: list[R.FillGroup], known: bool, sets: int = 2
                     ) -> tuple[list[np.ndarray], dict[str, np.ndarray], list[np.ndarray]]: ...
-        def _follows_relief(self, state: str) -> bool: ...
-        def _load_scale(self) -> LoadScale: ...
 
     def transform_evidence(self, windows: np.ndarray) -> np.ndarray:
         """:meth:`transform_with_levels` plus what pooling windows with one severity needs, NaN rows invalid.

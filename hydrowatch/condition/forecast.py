@@ -22,7 +22,8 @@ with the windows' times. Not specific to the parity method: any index series on 
    the family; slowing wear is not (:data:`GROWTH_GRID`). The bins' weights are Tukey's biweight of their
    residuals, refitted :data:`ROBUST_ITERATIONS` times (:func:`_robust_fit`): a run of outlier windows as long as a
    bin, which its median does not reject, weighs 0.
-5. **Alert time and interval.** Every candidate is solved for I = 1 after the last window; the forecast is the
+5. **Alert time and interval.** Every candidate is solved for I = 1 after the last window with an index, and the
+   operating time from there to the last window given (the machine's now) is taken off; the forecast is the
    median of these crossings, each weighted by its posterior weight e^{−ΔBIC/2} (:func:`_averaged_crossing`), not
    the crossing of the single best candidate: where a straight line with an onset and an accelerating curve
    explain a noisy index equally (ΔBIC 0.5 on an accelerating pump leak of seed 2042), picking one forecast the
@@ -105,8 +106,9 @@ class Forecast:
     Attributes
     ----------
     alert_in_s : float or None
-        Operating seconds from the last window with an index to the alert crossing (0 when already beyond); None
-        when the history does not support a forecast (``reason``).
+        Operating seconds from the last window given (the machine's last window with an index: a part's own last
+        index may be older) to the alert crossing (0 when already beyond); None when the history does not support a
+        forecast (``reason``).
     ci95 : (float or None, float or None)
         95 % interval of ``alert_in_s``, s; None for an unbounded end.
     rate_per_h : float
@@ -170,7 +172,9 @@ def part_forecast(t: np.ndarray, degradation: Degradation, fault: str, upto: int
     if degradation.ruled_out(fault, upto):
         return ruled_out_forecast()
     end = t.size if upto is None else upto + 1
-    return replace(forecast_alert(np.asarray(t)[:end], degradation.history(fault, upto)),
+    if degradation.valid is not None and degradation.valid[:end].any():  # counted from the last valid window
+        end = int(np.flatnonzero(degradation.valid[:end])[-1]) + 1
+    return replace(forecast_alert(np.asarray(t)[:end], degradation.history(fault, upto)[:end]),
                    untold_from=degradation.untold_from(fault, upto))
 
 
@@ -291,7 +295,8 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     Parameters
     ----------
     t : array_like, shape (n,)
-        Window times, s, in arrival order.
+        Window times, s, in arrival order; ``alert_in_s`` counts from the last (the machine's now: give the times of
+        the windows with an index of any part, such as :class:`~.forecast_stream.ForecastStream` holds).
     index : array_like, shape (n,)
         Degradation index per window; NaN where the window has none (invalid, unknown).
     max_gap_s : float, default 3600
@@ -310,7 +315,10 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     v = np.asarray(index, dtype=np.float64)
     if t.shape != v.shape or t.ndim != 1:
         raise DataError(f"times and index must be 1-D of one length. Got shapes {t.shape} and {v.shape}.")
-    keep = np.isfinite(v) & np.isfinite(t)
+    clock = np.isfinite(t)
+    t, v = t[clock], v[clock]
+    keep = np.isfinite(v)
+    since = _since_last(t, keep, max_gap_s)
     t, v = t[keep], v[keep]
     start = reset_start(v)
     reset_at = float(t[start]) if start > 0 else None
@@ -346,13 +354,23 @@ def forecast_alert(t: np.ndarray, index: np.ndarray, *, max_gap_s: float = 3600.
     lo, hi = resampled_interval(crossings)
     point, model_lo, model_hi = _averaged_crossing(bases, gammas, counts, y, weight)
     lo, hi = min(lo, model_lo), max(hi, min(model_hi, NEVER))
-    ci = (lo if lo < NEVER else None, hi if hi < NEVER else None)
+    ci = (max(lo - since, 0.0) if lo < NEVER else None, max(hi - since, 0.0) if hi < NEVER else None)
     fitted_now = Forecast(None, ci, rate_h, model, alpha, int(v.size), reset_at)
-    if point == 0.0:
+    if point <= since:  # beyond the alert at the part's last index, or by the last window given
         return replace(fitted_now, alert_in_s=0.0, ci95=(0.0, ci[1] if ci[1] is not None else 0.0))
     low_rate = float(np.quantile(rates, 0.025))
     if low_rate <= 0.0 or not point <= HORIZON_FACTOR * span:
         why = ("the wear rate's 95 % interval reaches 0" if low_rate <= 0.0
                else f"the alert is further than {HORIZON_FACTOR:g}× the {span:.0f} s of history")
         return replace(fitted_now, reason=f"too flat: {why}")
-    return replace(fitted_now, alert_in_s=float(point))
+    return replace(fitted_now, alert_in_s=float(point - since))
+
+
+def _since_last(t: np.ndarray, indexed: np.ndarray, max_gap_s: float) -> float:
+    """Operating time from the last window with an index (``indexed``) to the last window given, s (0 when it is
+    the last, or when none has one): the forecast counts from the last window given, the machine's now, not from
+    the part's last index (windows without one at the end: a part not told from a look-alike)."""
+    if not indexed.any():
+        return 0.0
+    op = operating_time(t, max_gap_s)
+    return float(op[-1] - op[np.flatnonzero(indexed)[-1]])
