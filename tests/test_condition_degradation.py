@@ -20,6 +20,7 @@ from hydrowatch.condition.attribution import (
 from hydrowatch.condition.capacity import PUMP_LIMITED
 from hydrowatch.condition.degradation import (
     ALERT_DROP,
+    AT_LIMIT_PARTS,
     ATTRIBUTION_MARGIN,
     COIL_AT_LIMIT,
     DETERMINED_STEP,
@@ -435,22 +436,27 @@ def test_a_part_told_apart_while_worn_is_held_against_a_look_alike():
     assert held == coil and near[1].sum() == 1
 
 
-def test_a_window_with_the_pump_at_its_limit_throughout_gives_the_coil_no_index():
-    # a coil blamed and told apart in 6 windows; in two of them θ0's pump is at its limit in every sample (and in one
-    # in 98 %): those two have no coil index, nor a provisional value; the other parts read as before
+@pytest.mark.parametrize("part", ["valve_coil", "relief_spring"])
+def test_a_window_with_the_pump_at_its_limit_throughout_gives_the_coil_and_the_relief_no_index(part):
+    # a coil (or relief spring) blamed and told apart in 6 windows; in two of them θ0's pump is at its limit in every
+    # sample (and in one in 98 %): those two have no index of it, nor a provisional value; the others read as before
+    assert part in AT_LIMIT_PARTS
     n = 6
-    severity = {f: np.full(n, 0.1 if f == "valve_coil" else 0.0) for f in FAULTS}
+    severity = {f: np.full(n, 0.1 if f == part else 0.0) for f in FAULTS}
     severity[PUMP_LIMITED] = np.array([0.0, 1.0, 0.98, COIL_AT_LIMIT, 0.3, 0.0])
     mses = {"load": np.full(n, 1e-4), "motor": np.full(n, 1e-4), **{f: np.full(n, 1e-4) for f in VALVE_HYPOTHESES}}
     fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
-    coil = VALVE_HYPOTHESES.index("valve_coil")
+    j = VALVE_HYPOTHESES.index(part)
     excess = np.full((n, 4), 50.0)
-    excess[:, coil] = 0.0
+    excess[:, j] = 0.0
     d = window_degradation(fits, np.ones(n, dtype=bool), PlantParameters(), 124, ("load", "motor", "valve"),
-                           blamed=np.full(n, coil), excess=excess)
-    np.testing.assert_array_equal(np.isnan(d.value["valve_coil"]), [False, True, False, True, False, False])
-    assert np.isnan(d.provisional["valve_coil"]).all() and not d.measured["valve_coil"][[1, 3]].any()
-    assert (d.value["relief_spring"] == 0.0).all() and np.isfinite(d.value["motor_leak"]).all()
+                           blamed=np.full(n, j), excess=excess)
+    np.testing.assert_array_equal(np.isnan(d.value[part]), [False, True, False, True, False, False])
+    assert np.isnan(d.provisional[part]).all() and not d.measured[part][[1, 3]].any()
+    other = "relief_spring" if part == "valve_coil" else "valve_coil"
+    assert (d.value[other] == 0.0).all() and np.isfinite(d.value["motor_leak"]).all()
+    # pump_leak and valve_leak are read there (the limit is what a pump leak reaches)
+    assert not {"pump_leak", "valve_leak"} & set(AT_LIMIT_PARTS)
 
 
 def test_where_the_commissioning_barely_saw_the_relief_its_early_wear_is_not_told_from_the_coils():

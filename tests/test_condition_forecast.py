@@ -378,3 +378,20 @@ def test_where_the_relief_and_the_coil_share_one_index_both_forecast_it_and_say_
     assert last.ruled_out("relief_spring") and last.untold_from("relief_spring") is None
     assert part_forecast(t, last, "relief_spring").reason.startswith("ruled out")
     assert part_forecast(t, last, "valve_coil").untold_from is None
+    # the coil told apart in the last window but one, and the last determines neither part (both untold, no
+    # value): that window says nothing of which, so the relief stays ruled out and its shared history (the coil's
+    # index) gives it no forecast; before stop 59 the last valid window decided, and the relief was forecast,
+    # unnamed, from the coil's wear (flagged unit 3005/333 with the relief undetermined at the pump's limit)
+    told = excess.copy()
+    told[-2, relief] = 20.0
+    blind = ParityEstimates(severity, mses, {f: np.where(np.arange(n) == n - 1, 0.0, 5.0) if f in
+                                             ("relief_spring", "valve_coil") else np.full(n, 5.0) for f in FAULTS})
+    silent = window_degradation(blind, *args[1:], relief_barely_seen=True, **{**kw, "excess": told})
+    assert np.isnan(silent.value["relief_spring"][-1]) and np.isnan(silent.value["valve_coil"][-1])
+    assert silent.value["relief_spring"][-2] == 0.0 and silent.measured["valve_coil"][-2]
+    assert silent.ruled_out("relief_spring") and not silent.ruled_out("valve_coil")
+    assert part_forecast(t, silent, "relief_spring").reason.startswith("ruled out")
+    stream = ForecastStream()
+    for i in range(n):
+        stream.update(float(t[i]), silent.window(i, measured=True))
+    assert stream.get()["relief_spring"].reason.startswith("ruled out") and "valve_coil" in stream.get()

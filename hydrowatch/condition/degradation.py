@@ -117,8 +117,20 @@ medians of −0.01 to +0.02 in the same paths' windows below it (shares 0–0.99
 forecasts within ±20 % 5 → 8 of 8 (docs/degradation.md, "The coil at the pump's limit")."""
 
 
-AT_LIMIT_PARTS: tuple[str, ...] = ("valve_coil",)
-"""Parts a window with θ0's pump at its limit throughout (:data:`COIL_AT_LIMIT`) does not determine."""
+AT_LIMIT_PARTS: tuple[str, ...] = ("valve_coil", "relief_spring")
+"""Parts a window with θ0's pump at its limit throughout (:data:`COIL_AT_LIMIT`) does not determine: the coil (above),
+and since stop 59 the relief spring. With θ0's pump at its limit the relief of θ0 is shut, and its fit finds a
+narrow valley where cracking explains θ0's capacity error instead (as the coil's reads it): on flagged unit 3011/51
+(fresh for stop 59's other changes, where this was found) all 111 relief windows off by more than 0.2 were such
+windows (true 0.1–0.5: median error +0.37), every other window within 0.06; on the 40 flagged units 3001–3010 such
+windows of a relief at true 0.1–1.0 had a mean error above 0.05 in a band on 24 units (medians −0.40 to +0.62), the
+other windows' medians −0.10 to +0.04. Beyond the alert (true 1.0–1.4) they read within 0.02 in median, and are
+dropped too: one rule, not one that reads the window's own index. Stored fits replayed (tuning: 3001–3012, 48
+flagged units; 2098–2101, 16 regular): relief MAE worst 0.067 → 0.026 (3011/3012) and 0.037 → 0.029 (3001–3010),
+relief forecasts within ±20 % and covered the same (39 and 38 of 40; worst 25.4 → 22.2 %), no false forecast (with
+:meth:`~.degradation_series.Degradation.ruled_out` deciding the pair on the latest window that reads either); the
+cost, fewer indexed relief windows: 49 → 30 % of a flagged relief path's windows, 66 → 52 % on regular 2100/2101
+(worst relief forecast there 3.9 → 9.3 %) (docs/degradation.md, "The relief at the pump's limit")."""
 
 
 def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantParameters) -> np.ndarray:

@@ -97,7 +97,15 @@ class Degradation:
         ``fault`` then is of it or that part."""
         if fault not in SHARED_PAIR or self.shared is None:
             return None
-        end = self.value[fault].size if upto is None else upto + 1
+        last = self._last_saying(upto)
+        if last is None or not self.shared[last]:
+            return None
+        return next(f for f in SHARED_PAIR if f != fault)
+
+    def _last_saying(self, upto: int | None) -> int | None:
+        """The latest valid window (up to ``upto``) where either part of :data:`SHARED_PAIR` reads a value (its own,
+        a 0 while the other is blamed, or a provisional one), None if none."""
+        end = self.value[SHARED_PAIR[0]].size if upto is None else upto + 1
         says = np.zeros(end, dtype=bool)
         for f in SHARED_PAIR:
             says |= np.isfinite(self.value[f][:end])
@@ -106,15 +114,17 @@ class Degradation:
         if self.valid is not None:
             says &= self.valid[:end]
         rows = np.flatnonzero(says)
-        if not rows.size or not self.shared[rows[-1]]:
-            return None
-        return next(f for f in SHARED_PAIR if f != fault)
+        return int(rows[-1]) if rows.size else None
 
     def ruled_out(self, fault: str, upto: int | None = None) -> bool:
         """Whether the last valid window (up to ``upto``) rules the part out: a valve-side part another was blamed
         for by the margin, reading 0 (:func:`~hydrowatch.condition.forecast.ruled_out_forecast`); not where it
-        shares the pair's index."""
-        last = self._last_valid(fault, upto)
+        shares the pair's index. For a part of a pair that shared one, the latest window that reads either part
+        decides (:meth:`untold_from`'s): a window that reads neither (both untold, neither determined) says nothing
+        of which, and the pair's shared history is the other part's once that part was told apart."""
+        end = self.value[fault].size if upto is None else upto + 1
+        pair = fault in SHARED_PAIR and self.shared is not None and bool(self.shared[:end].any())  # as online
+        last = self._last_saying(upto) if pair else self._last_valid(fault, upto)
         return (last is not None and not self.measured[fault][last] and self.value[fault][last] == 0.0
                 and self.untold_from(fault, upto) is None)
 

@@ -61,7 +61,10 @@ class ForecastStream:
         self._untold: dict[str, str] = {}
         """Each part of the pair the latest window that reads either shares its index with, and the other."""
         self._ruled_out: set[str] = set()
-        """Valve-side parts the latest window rules out (another blamed by the margin): no forecast for them."""
+        """Valve-side parts the latest window rules out (another blamed by the margin): no forecast for them; for the
+        pair, once it shared an index, the latest window that reads either (Degradation.ruled_out)."""
+        self._paired = False
+        """Whether a window of this history shared the pair's index (Degradation.shared not None)."""
         self._seen: set[str] = set()
         """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
         with a finite value in the file)."""
@@ -81,11 +84,14 @@ class ForecastStream:
         :meth:`~.degradation_series.Degradation.window`). Returns nothing."""
         row, waiting = (np.full(len(FAULTS), np.nan, dtype=np.float32) for _ in range(2))
         shared = {f: e for f, e in degradation.items() if e.get("untold_from")}
-        if any(f in degradation and np.isfinite(degradation[f]["value"]) for f in SHARED_PAIR):  # says which
+        says = any(f in degradation and np.isfinite(degradation[f]["value"]) for f in SHARED_PAIR)
+        if says:  # says which
             self._untold = {g: h for f, e in shared.items() for g, h in ((f, e["untold_from"]), (e["untold_from"], f))}
         self._seen.update(self._untold)
-        self._ruled_out = {f for f, e in degradation.items() if not e.get("measured", True)
-                           and not e.get("provisional", False) and e["value"] == 0.0} - set(self._untold)
+        pair = set() if says or not self._paired else self._ruled_out & set(SHARED_PAIR)  # a window silent on the pair
+        self._ruled_out = ({f for f, e in degradation.items() if not e.get("measured", True)
+                            and not e.get("provisional", False) and e["value"] == 0.0} | pair) - set(self._untold)
+        self._paired = self._paired or bool(shared)
         for j, fault in enumerate(FAULTS):
             entry = degradation.get(fault)
             if entry is None or not np.isfinite(entry["value"]):
