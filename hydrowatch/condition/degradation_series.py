@@ -123,10 +123,13 @@ class Degradation:
         decides (:meth:`untold_from`'s): a window that reads neither (both untold, neither determined) says nothing
         of which, and the pair's shared history is the other part's once that part was told apart."""
         end = self.value[fault].size if upto is None else upto + 1
-        pair = fault in SHARED_PAIR and self.shared is not None and bool(self.shared[:end].any())  # as online
-        last = self._last_saying(upto) if pair else self._last_valid(fault, upto)
-        return (last is not None and not self.measured[fault][last] and self.value[fault][last] == 0.0
-                and self.untold_from(fault, upto) is None)
+        if fault in SHARED_PAIR and self.shared is not None and self.shared[:end].any():  # as online
+            last = self._last_saying(upto)
+            sharing = last is not None and bool(self.shared[last])  # untold_from's answer, without a second scan
+        else:
+            last, sharing = self._last_valid(fault, upto), False  # no shared window yet: untold_from is None
+        return (last is not None and not sharing and not self.measured[fault][last]
+                and self.value[fault][last] == 0.0)
 
     def parts(self) -> list[str]:
         """The parts a forecast of these windows covers: each with an index in some window, and the pair where
