@@ -8,6 +8,7 @@ import pytest
 from hydrowatch.condition import ConditionFeatures, attribution
 from hydrowatch.condition.attribution import (
     BARELY_SEEN_LEVEL,
+    BARELY_SEEN_MARGIN,
     EARLY_LEVEL,
     EARLY_MARGIN,
     HELD_MARGIN,
@@ -499,6 +500,13 @@ def test_where_the_commissioning_barely_saw_the_relief_its_early_wear_is_not_tol
     assert ATTRIBUTION_MARGIN < 5.0 < EARLY_MARGIN and EARLY_LEVEL < 0.3 < BARELY_SEEN_LEVEL < 0.6
     for barely, told in ((False, [True, True]), (True, [False, True])):
         near, _ = contenders(ahead, np.array([0.3, 0.6]), relief_barely_seen=barely)
+        assert ((near.sum(axis=1) == 1) == told).all(), barely
+    # and by more than the early margin: the coil ahead by 8.9 nats at 0.28 (3018 unit 641's relief path, stop 61)
+    # is told apart on a regular unit, not on such a unit; by 11 nats on both
+    ahead[:, relief] = [8.9, 11.0]
+    assert EARLY_MARGIN < 8.9 < BARELY_SEEN_MARGIN < 11.0
+    for barely, told in ((False, [True, True]), (True, [False, True])):
+        near, _ = contenders(ahead, np.array([0.28, 0.28]), relief_barely_seen=barely)
         assert ((near.sum(axis=1) == 1) == told).all(), barely
     assert relief_barely_seen(RELIEF_SHUT_SHARE) and not relief_barely_seen(RELIEF_SHUT_SHARE - 0.01)
     assert relief_barely_seen(0.38) and not relief_barely_seen(None)  # 2102 unit 0 (stop 60): Kr seen 0.79 ×

@@ -51,10 +51,20 @@ the coil 1.33–1.36 on a relief spring blamed for the 200 windows before (tunin
 
 BARELY_SEEN_LEVEL = 0.5
 """On a unit whose commissioning barely saw the relief, the index (blamed part, pool median) below which the pool
-must tell it apart by :data:`EARLY_MARGIN`: up to the warning, not :data:`EARLY_LEVEL`. There the relief spring and
-the coil stay look-alikes past 0.25: on the 32 such units of seeds 3001–3008 the coil was told apart on 4 relief paths
-at 0.31–0.49 by 3–7 nats (up to 2.4 % of a path's windows, one false forecast); with 7 up to 0.5 none, and 10 of 32
-relief forecasts at the warning say "or valve_coil" (3 before; docs/degradation.md, "A relief barely seen")."""
+must tell it apart by :data:`BARELY_SEEN_MARGIN`: up to the warning, not :data:`EARLY_LEVEL`. There the relief
+spring and the coil stay look-alikes past 0.25: on the 32 such units of seeds 3001–3008 the coil was told apart on 4
+relief paths at 0.31–0.49 by 3–7 nats (up to 2.4 % of a path's windows, one false forecast); with 7 up to 0.5 none,
+and 10 of 32 relief forecasts at the warning say "or valve_coil" (3 before; docs/degradation.md, "A relief barely
+seen")."""
+BARELY_SEEN_MARGIN = 10.0
+"""Pool misfit (nats) by which the blamed valve-side part must beat the runner-up below :data:`BARELY_SEEN_LEVEL` on a
+unit whose commissioning barely saw the relief: wider than :data:`EARLY_MARGIN` (7 until stop 61). On the stored
+window fits of the 64 such units of seeds 3001–3018 (tuning since) the pools that told the coil apart on a wearing
+relief below the warning did so by 7.0–8.9 nats (3017 unit 79 at 0.44, the coil read 0.50–0.53; 3018 unit 641 at
+0.28, 0.32), the right part by 7–10 in 11 % of its told windows at 0.25–0.5. At 10: paths with another part above
+0.15 on 3017/3018's 16 units 3 → 1 (the one left pump_leak at the path's start), every forecast and index MAE the
+same on all 64 units and on the regular units 2100–2103; fewer indexed early windows of the relief and the coil
+(median path 18 → 12 % and 27 → 23 % on 3017/3018), more forecasts naming both (docs/degradation.md)."""
 EARLY_LEVEL = 0.25
 """Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
 runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
@@ -172,7 +182,7 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     uncertain) the relief spring and the coil are each other's contenders while the blamed one of them is below
     :data:`EARLY_LEVEL`, whatever the excess: the relief hypothesis, fitted with a wrong Kr, explains the relief's own
     early wear worse than the coil does (docs/degradation.md, "A relief barely seen"); and the margin is
-    :data:`EARLY_MARGIN` up to :data:`BARELY_SEEN_LEVEL`; ``blamed`` (shape (n,), −1: invalid) is the part with no
+    :data:`BARELY_SEEN_MARGIN` up to :data:`BARELY_SEEN_LEVEL`; ``blamed`` (shape (n,), −1: invalid) is the part with no
     excess, found from ``excess`` when not given.
     """
     lv = np.asarray(level, dtype=np.float64)
@@ -183,7 +193,7 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     margin = np.where(worn, ATTRIBUTION_MARGIN, EARLY_MARGIN)
     if relief_barely_seen:
         with np.errstate(invalid="ignore"):
-            margin = np.where(lv >= BARELY_SEEN_LEVEL, margin, EARLY_MARGIN)
+            margin = np.where(lv >= BARELY_SEEN_LEVEL, margin, BARELY_SEEN_MARGIN)
     near = np.asarray(excess) < margin[:, None]
     if relief_barely_seen:
         if blamed is None:
