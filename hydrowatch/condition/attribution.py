@@ -57,14 +57,15 @@ relief paths at 0.31–0.49 by 3–7 nats (up to 2.4 % of a path's windows, one 
 and 10 of 32 relief forecasts at the warning say "or valve_coil" (3 before; docs/degradation.md, "A relief barely
 seen")."""
 BARELY_SEEN_MARGIN = 10.0
-"""Pool misfit (nats) by which the blamed valve-side part must beat the runner-up below :data:`BARELY_SEEN_LEVEL` on a
-unit whose commissioning barely saw the relief: wider than :data:`EARLY_MARGIN` (7 until stop 61). On the stored
+"""Pool misfit (nats) by which the blamed valve-side part must beat the runner-up below :data:`BARELY_SEEN_LEVEL` on
+a unit whose commissioning barely saw the relief: wider than :data:`EARLY_MARGIN` (7 until stop 61). On the stored
 window fits of the 64 such units of seeds 3001–3018 (tuning since) the pools that told the coil apart on a wearing
 relief below the warning did so by 7.0–8.9 nats (3017 unit 79 at 0.44, the coil read 0.50–0.53; 3018 unit 641 at
-0.28, 0.32), the right part by 7–10 in 11 % of its told windows at 0.25–0.5. At 10: paths with another part above
-0.15 on 3017/3018's 16 units 3 → 1 (the one left pump_leak at the path's start), every forecast and index MAE the
-same on all 64 units and on the regular units 2100–2103; fewer indexed early windows of the relief and the coil
-(median path 18 → 12 % and 27 → 23 % on 3017/3018), more forecasts naming both (docs/degradation.md)."""
+0.28, 0.32), the right part by 7–10 in 11 % of the windows that blamed it at 0.25–0.5. At 10: paths with another part
+above 0.15 on 3017/3018's 16 units 3 → 1 (the one left pump_leak at the path's start), every forecast the same and
+every index MAE within 0.001 on all 64 units and on the regular units 2100–2103; fewer indexed early windows of the
+relief and the coil (median path 18 → 12 % and 27 → 23 % on 3017/3018), more forecasts naming both
+(docs/degradation.md)."""
 EARLY_LEVEL = 0.25
 """Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
 runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
