@@ -428,3 +428,22 @@ def test_plant_answers_a_stop_while_it_waits_for_subscribers() -> None:
         assert time.monotonic() - began < 10.0  # measured: ~0.3 s; 60 s and more before
     finally:
         plant.kill()
+
+
+def test_a_signal_that_arrives_while_the_stop_event_holds_its_lock_still_stops():
+    # the handler runs in the main thread between two bytecodes; inside the stop event's own wait (its lock held on
+    # the way in and out) a handler that set the event itself waited for that lock forever
+    script = (
+        "import os, signal\n"
+        "from hydrowatch.bus.service import stop_on_signals\n"
+        "with stop_on_signals() as stop:\n"
+        "    with stop._cond:  # as Event.wait holds it\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        sum(range(1000))  # the handler runs here\n"
+        "    print('stopped' if stop.wait(10) else 'not stopped', flush=True)\n"
+    )
+    try:
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    except subprocess.TimeoutExpired:
+        pytest.fail("a SIGTERM inside the stop event's lock hung the process")
+    assert done.stdout.strip() == "stopped", done.stderr

@@ -50,7 +50,12 @@ def freeze_heap() -> None:
 
 @contextmanager
 def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM while the block runs (main thread only); handlers restored after."""
+    """An event set by SIGINT or SIGTERM while the block runs (main thread only); handlers restored after.
+
+    The handler sets the event from a thread of its own: it runs in the main thread between two bytecodes, and where
+    those are inside the event's own ``wait`` (which holds the event's lock, not reentrant, on its way in and out),
+    ``set`` there would wait for that lock forever (a plant service waiting out its pacing hung so until killed,
+    tests/test_web_browser.py, 2026-12-04)."""
     stop = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield stop
@@ -60,7 +65,7 @@ def stop_on_signals() -> Iterator[threading.Event]:
     def handler(signum: int, frame: object) -> None:
         if not stop.is_set():
             faulthandler.dump_traceback_later(STOP_DUMP_S, exit=False)  # where a stop hangs (STOP_DUMP_S)
-        stop.set()
+        threading.Thread(target=stop.set, name="stop-signal", daemon=True).start()
 
     for sig in previous:
         signal.signal(sig, handler)
