@@ -30,10 +30,11 @@ from hydrowatch.condition import estimates as E
 from hydrowatch.condition.unit_checks import RELIEF_SHUT_SHARE, pump_at_limit_share
 from hydrowatch.plant import PlantSimulator
 from hydrowatch.plant.excitation import duty_cycle, filtered_noise
-from hydrowatch.plant.faults import FAULTS
+from hydrowatch.plant.faults import FAULTS, speed_drop_table
 from hydrowatch.plant.fleet import DegradationPath, Fleet, MachineSpec
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.population import later_day, random_unit
+from hydrowatch.plant.wear import worn_parameters
 
 CHANNELS = ("voltage", "flow", "speed", "torque")
 W = 1000
@@ -170,7 +171,9 @@ def unit_fits(draw: dict, hours: float, command: str = "noise") -> dict[str, Any
 @functools.cache
 def fingerprint() -> str:
     """SHA-256 of the :data:`PROBE` unit's commissioning and window fits as this code makes them (float32, so that
-    the last bits of a float do not count), on one thread."""
+    the last bits of a float do not count), on one thread, and of the parameters each fault's path gives a unit
+    whose relief is shut at 2 V (:func:`hydrowatch.plant.wear.unseen_severity`: wear the probe's paths may not
+    exercise)."""
     seed, hours = PROBE
     with threadpool_limits(1):
         fits = unit_fits(draw_unit(0, np.random.default_rng(seed), hours), hours)
@@ -181,6 +184,12 @@ def fingerprint() -> str:
         for field in FIELDS:
             for key, x in sorted(getattr(est, field).items()):
                 h.update(key.encode() + np.asarray(x, dtype=np.float32).tobytes())
+    shut = PlantParameters().replace(omega_p=0.55 * PlantParameters().omega_p)  # the pump at its limit at 2 V
+    for fault in FAULTS:
+        path = DegradationPath(fault, 60.0, 600.0, final_drop=0.39)
+        table = speed_drop_table(fault, path.top_drop, shut)
+        worn = [worn_parameters(path, shut, table, t)[0].to_dict() for t in (0.0, 59.0, 60.0, 61.0, 300.0)]
+        h.update(json.dumps(worn, sort_keys=True).encode())
     return h.hexdigest()
 
 

@@ -7,6 +7,7 @@ import pytest
 
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.excitation import steps
+from hydrowatch.plant.faults import speed_drop, speed_drop_table
 from hydrowatch.plant.fleet import (
     SCATTERED_PARAMETERS,
     DegradationPath,
@@ -18,6 +19,7 @@ from hydrowatch.plant.fleet import (
 )
 from hydrowatch.plant.parameters import PlantParameters
 from hydrowatch.plant.steady import steady_speed
+from hydrowatch.plant.wear import DROP_SEEN, unseen_severity, worn_parameters
 
 
 def test_scatter_stays_inside_the_spread_and_is_seeded():
@@ -105,6 +107,33 @@ def test_degradation_path_from_a_worn_start_and_accelerating():
         DegradationPath("load", 0.0, 10.0, shape="cubic")
     with pytest.raises(ParameterError, match="start_drop"):
         DegradationPath("load", 0.0, 10.0, start_drop=-0.1)
+
+
+@pytest.mark.parametrize("shape", ["linear", "exp"])
+def test_a_relief_spring_shut_at_2v_wears_unseen_from_new_without_a_step(shape):
+    # a pump at its limit at 2 V: the supply pressure there below the cracking pressure, the relief shut until its
+    # spring has weakened some way (as on units whose commissioning had the pump at its limit half of the time)
+    unit = PlantParameters().replace(omega_p=0.55 * PlantParameters().omega_p)
+    path = DegradationPath("relief_spring", start_s=120.0, duration_s=1800.0, final_drop=0.39, shape=shape)
+    table = speed_drop_table("relief_spring", path.top_drop, unit)
+    s0 = float(np.interp(DROP_SEEN, *table))
+    assert s0 > 0.05  # the severity at which the drop at 2 V starts to move
+    t = np.arange(0.0, 400.0)
+    worn = [worn_parameters(path, unit, table, float(x)) for x in t]
+    severity = np.array([1.0 - p.Pc / unit.Pc for p, _ in worn])
+    assert severity[t == 120.0][0] == pytest.approx(s0, rel=1e-6)
+    assert np.all(np.diff(severity) >= -1e-12)
+    assert np.max(np.diff(severity)) < 0.02 * s0  # before: one step of s0 at the path's start
+    assert severity[0] < severity[119]  # wearing unseen before the path's start, at the path's rate
+    assert [d for _, d in worn] == pytest.approx(path.drop_at(t))  # the drop, the index and labels unchanged
+    assert speed_drop("relief_spring", float(severity[119]), unit) < 5 * DROP_SEEN  # unseen at 2 V indeed
+    # a unit whose relief opens at 2 V: the part is new until the path starts, as before
+    default = PlantParameters()
+    table = speed_drop_table("relief_spring", path.top_drop, default)
+    assert worn_parameters(path, default, table, 119.0)[0] == default
+    assert unseen_severity(path, table, np.array([0.0, 119.0])) == pytest.approx([0.0, 0.0])
+    worn_start = DegradationPath("relief_spring", 120.0, 1800.0, final_drop=0.39, start_drop=0.06, shape=shape)
+    assert unseen_severity(worn_start, table, 0.0) == 0.0
 
 
 def test_state_data_set_is_labelled_and_seeded_per_state():

@@ -4,6 +4,8 @@ FROM and TO are **degradation-index** values (:mod:`hydrowatch.condition.degrada
 fraction of the alert drop, 0 = new, 0.5 = warning, 1.0 = alert. They are the scale the monitor reports, so a
 path written as ``load:0:1.2:3600`` is read back by ``score --json`` as an index going from 0 to 1.2 over an hour,
 whatever the unit's parameters (the severity that causes a given drop is found on the simulated unit itself).
+A part whose drop at 2 V starts to move only once it has worn some way (a relief spring whose pump is at its limit at
+2 V) wears unseen before the path starts, without a step (:func:`hydrowatch.plant.wear.unseen_severity`).
 The path starts at the recording's first sample and holds TO after SECONDS.
 """
 

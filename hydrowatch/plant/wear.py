@@ -96,7 +96,42 @@ def worn_parameters(path: DegradationPath, healthy: PlantParameters, table: tupl
     ``table`` is :func:`~hydrowatch.plant.faults.speed_drop_table` of the path's fault up to ``path.top_drop`` on
     the machine's ``healthy`` parameters (drop → severity on that unit)."""
     drop = float(path.drop_at(t))
-    return (fault_parameters(healthy, path.fault, float(np.interp(drop, *table))) if drop > 0 else healthy), drop
+    severity = float(np.interp(max(drop, DROP_SEEN), *table)) if drop > 0 else float(unseen_severity(path, table, t))
+    return (fault_parameters(healthy, path.fault, severity) if severity > 0 else healthy), drop
+
+
+DROP_SEEN = 1e-5
+"""Speed drop at 2 V (fraction) below which a part's wear counts as unseen there: a thousandth of a percent, far
+below what a speed sensor resolves. A path's drop between 0 and this is read as this (:func:`unseen_severity`)."""
+LEAD_FRACTION = 0.01
+"""Share of a path's duration over which :func:`unseen_severity` measures the severity rate at its start."""
+
+
+def unseen_severity(path: DegradationPath, table: tuple[np.ndarray, np.ndarray], t: float | np.ndarray
+                    ) -> float | np.ndarray:
+    """Severity of a path's part at times ``t`` before its speed drop at 2 V starts to move: the part wearing
+    *unseen* from new, at the rate at which the path goes on.
+
+    Some parts hardly lower the speed at 2 V until they have worn some way: a relief spring on a unit whose pump is
+    at its limit at 2 V (the supply pressure there below the cracking pressure) leaves its relief shut at 2 V until
+    the cracking pressure has fallen by 2–10 % (4 of the 5 units drawn whose true parameters put the pump at its
+    limit in half or more of a noise commissioning, none of 455 others; seeds 2000 and 2001). The severity of the
+    first drop seen, ``s0 = severity(DROP_SEEN)``, is then well above 0, and a path from index 0 jumped there at its
+    start: the cracking pressure falling 10 % in an instant, which no spring wearing from new does. Here the part
+    reaches ``s0`` at ``start_s`` from 0, at the severity rate r of the path's first :data:`LEAD_FRACTION` of its
+    duration, so that the severity and its rate go on without a step: ``max(0, s0 − r·(start_s − t))`` before
+    ``start_s`` (on other units s0 is ~1e-5 and this nothing). The drop, the index and the labels are the path's,
+    unchanged (0 before ``start_s``); a path whose ``start_drop`` is above 0 starts there and has none of this."""
+    t = np.asarray(t, dtype=np.float64)
+    if path.start_drop > 0.0:
+        severity = np.zeros(t.shape)
+    else:
+        s0 = float(np.interp(DROP_SEEN, *table))
+        step = LEAD_FRACTION * path.duration_s
+        rate = max(float(np.interp(max(float(path.drop_at(path.start_s + step)), DROP_SEEN), *table)) - s0, 0.0) / step
+        lead = np.maximum(0.0, path.start_s - t)
+        severity = np.clip(s0 - rate * lead, 0.0, s0) if rate > 0 else np.where(lead > 0, 0.0, s0)
+    return float(severity) if severity.ndim == 0 else severity
 
 
 class Wear:
