@@ -121,8 +121,9 @@ def unseen_severity(path: DegradationPath, table: tuple[np.ndarray, np.ndarray],
     cracking pressure falling up to 23 % in an instant, which no spring wearing from new does. Here the part
     reaches ``s0`` at ``start_s`` from 0, at the severity rate r of the path's first :data:`LEAD_FRACTION` of its
     duration, so that the severity and its rate go on without a step: ``max(0, s0 − r·(start_s − t))`` before
-    ``start_s`` (on other units s0 is ~1e-5 and this nothing). The drop, the index and the labels are the path's,
-    unchanged (0 before ``start_s``); a path whose ``start_drop`` is above 0 starts there and has none of this."""
+    ``start_s`` (elsewhere s0 is 1e-5–3e-4 of the fault's scale on the default unit, and the lead a few seconds). The
+    drop, the index and the labels are the path's, unchanged (0 before ``start_s``); a path whose ``start_drop`` is
+    above 0 starts there and has none of this."""
     t = np.asarray(t, dtype=np.float64)
     if path.start_drop > 0.0:
         severity = np.zeros(t.shape)
