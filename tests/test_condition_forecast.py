@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -395,3 +396,17 @@ def test_where_the_relief_and_the_coil_share_one_index_both_forecast_it_and_say_
     for i in range(n):
         stream.update(float(t[i]), silent.window(i, measured=True))
     assert stream.get()["relief_spring"].reason.startswith("ruled out") and "valve_coil" in stream.get()
+
+
+def test_a_linear_wear_after_a_lone_early_reading_and_a_gap_is_forecast_as_linear():
+    # fresh flagged unit 3026/56's relief path (stop 62): one reading before its wear began (5 % into the history),
+    # then 125 windows without an index (the pair untold), then a straight line to the warning; with onsets only
+    # every 0.1 the accelerating model won, 1411 s for a true 2136 (33.9 % early, its interval 1124-1617)
+    case = json.loads((Path(__file__).parent / "data" / "forecast_lone_early_point.json").read_text())
+    t = np.append(case["t_s"], case["now_s"])  # the machine's now: its last window, the part's index none there
+    index = np.append(case["index"], np.nan)
+    assert t[1] - t[0] > 100 * HOP  # the gap after the lone reading
+    f = forecast_alert(t, index)
+    assert f.model == "linear"
+    assert f.alert_in_s == pytest.approx(case["remaining_s"], rel=0.05)
+    assert f.ci95[0] <= case["remaining_s"] <= f.ci95[1]
