@@ -44,6 +44,7 @@ load and motor_leak have their own relations and are always estimated.
 which then leaves Dp·ωp anywhere along the relief's ridge; once a leak takes the pump to its limit, the pool's windows
 meeting it at different pressures separate the capacity from the leak. Until they have, a unit whose commissioning
 left the capacity undetermined has no pump_leak index (:class:`~hydrowatch.condition.capacity.MachineCapacity`).
+A forecast reads the part's history re-read on the latest capacity (:mod:`hydrowatch.condition.index_table`).
 
 **Determined or not.** A window whose fit barely depends on a part's severity (a severity :data:`DETERMINED_STEP`
 off would not double its MSE) has no index for that part (NaN), whatever its interval says: the severity search
@@ -62,26 +63,20 @@ from hydrowatch.condition.attribution import ATTRIBUTION_WINDOWS as ATTRIBUTION_
 from hydrowatch.condition.attribution import LOOK_ALIKES, NOMINAL_VALVE, contenders, pool_median
 from hydrowatch.condition.attribution import attributed_valve_fault as attributed_valve_fault
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
-from hydrowatch.condition.brake import brake_factors, with_brake
-from hydrowatch.condition.capacity import (
-    PUMP_LIMIT,
-    PUMP_LIMITED,
-    capacity_errors,
-    corrected,
-    with_capacity,
-)
+from hydrowatch.condition.brake import brake_factors
+from hydrowatch.condition.capacity import PUMP_LIMIT, PUMP_LIMITED, capacity_errors, corrected
 from hydrowatch.condition.degradation_series import Degradation as Degradation  # the public name stays here
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
 from hydrowatch.condition.features_evidence import RELATION_OF
+from hydrowatch.condition.index_table import ALERT_DROP as ALERT_DROP  # the public names stay here
+from hydrowatch.condition.index_table import LEAK, LeakReading, unit_indices
+from hydrowatch.condition.index_table import TABLE_DROP as TABLE_DROP
+from hydrowatch.condition.index_table import degradation_index as degradation_index
 from hydrowatch.condition.unit_checks import relief_barely_seen
-from hydrowatch.plant.faults import FAULTS, LEVELS, speed_drop_table
+from hydrowatch.plant.faults import FAULTS
 from hydrowatch.plant.parameters import PlantParameters
 
-ALERT_DROP = LEVELS["alert"]
-"""Speed drop at 2 V that the index divides by: 1.0 = alert."""
-TABLE_DROP = 0.6
-"""Largest speed drop tabulated (index 2); beyond it the table is extrapolated linearly."""
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile."""
 SYSTEMATIC = (0.02, 0.03)
@@ -131,36 +126,6 @@ relief forecasts within ±20 % and covered the same (39 and 38 of 40; worst 25.4
 :meth:`~.degradation_series.Degradation.ruled_out` deciding the pair on the latest window that reads either); the
 cost, fewer indexed relief windows: 49 → 30 % of a flagged relief path's windows, 66 → 52 % on regular 2100/2101
 (worst relief forecast there 3.9 → 9.3 %) (docs/degradation.md, "The relief at the pump's limit")."""
-
-
-def degradation_index(fault: str, severity: np.ndarray | float, nominal: PlantParameters) -> np.ndarray:
-    """Index I = speed drop at 2 V / 0.30 of severities ŝ of one fault on one unit (module docstring).
-
-    Parameters
-    ----------
-    fault : str
-        One of :data:`~hydrowatch.plant.faults.FAULTS`.
-    severity : array_like
-        Severity on the fault's scale (:mod:`hydrowatch.plant.faults`), any shape; negative: better than nominal.
-    nominal : PlantParameters
-        The unit's own healthy parameters.
-
-    Returns
-    -------
-    ndarray, shape of ``severity``
-        Index, dimensionless (NaN where the severity is NaN, and at ±inf beyond a flat end of the table: an
-        undetermined fit's interval bound, which :func:`widened` caps).
-    """
-    drop, sev = speed_drop_table(fault, TABLE_DROP, nominal)
-    s = np.asarray(severity, dtype=np.float64)
-    value = np.interp(s, sev, drop)
-    low_slope = (drop[1] - drop[0]) / (sev[1] - sev[0])
-    high_slope = (drop[-1] - drop[-2]) / (sev[-1] - sev[-2])
-    with np.errstate(invalid="ignore"):  # ±inf (an undetermined fit's interval bound) on a flat end: NaN, no bound
-        value = np.where(s < sev[0], drop[0] + low_slope * (s - sev[0]), value)
-        value = np.where(s > sev[-1], drop[-1] + high_slope * (s - sev[-1]), value)
-    return np.asarray(value / ALERT_DROP)
-
 
 
 def widened(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -213,7 +178,8 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         pump_leak is read on θ0 with that capacity, and has no index where it is NaN.
     capacity_known : bool, default True
         Whether θ0's capacity is determined (``ConditionFeatures.capacity_known_``): q̂ = 0 throughout; else (and
-        ``capacity`` None) from the history.
+        ``capacity`` None) from the history, and the result keeps what re-reads pump_leak's history on the latest
+        q̂ (:class:`~hydrowatch.condition.index_table.LeakReading`).
     pool_severity : mapping of valve hypothesis to ndarray, shape (m,), optional
         Each valve hypothesis's median free-fit severity over the window's pool (None: from the estimates with
         ``pool``); the blamed part's index there chooses the margin (:func:`~.attribution.contenders`).
@@ -265,7 +231,7 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         if fault in parity.VALVE_HYPOTHESES:  # and the index at the pool's median severity (its wear so far)
             med = pool_median(s, pool) if pool_severity is None else np.asarray(pool_severity[fault], dtype=float)
             stack = np.concatenate([stack, corrected(med[None], ratio, q) if fault == "pump_leak" else med[None]])
-        v, lo, hi, *at_pool = _indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
+        v, lo, hi, *at_pool = unit_indices(fault, stack, nominal, np.ones_like(s) if fault == "load" else brake, q)
         read[fault] = (v, *widened(v, lo, hi), determined)
         if at_pool:
             pooled[fault] = at_pool[0]
@@ -293,7 +259,12 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         others = [j for j in range(len(parity.VALVE_HYPOTHESES)) if j not in LOOK_ALIKES]
         pair = untold & contender[:, list(LOOK_ALIKES)].all(axis=1) & ~contender[:, others].any(axis=1)
     shared = pair & np.isfinite(np.fmax(*(provisional[parity.VALVE_HYPOTHESES[j]] for j in LOOK_ALIKES)))
-    return Degradation(value, low, high, measured, provisional, valid, held, shared if shared.any() else None)
+    leak = None
+    if not capacity_known and LEAK in read:  # the capacity is the history's: a forecast re-reads on its latest
+        has = measured[LEAK] | np.isfinite(provisional[LEAK])
+        leak = LeakReading(nominal, *(np.where(has, _spread(x, valid), np.nan) for x in (
+            own.severity[LEAK], np.nan_to_num(ratio, nan=0.0), brake, np.asarray(capacity, dtype=np.float64))))
+    return Degradation(value, low, high, measured, provisional, valid, held, shared if shared.any() else None, leak)
 
 
 def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:
@@ -305,18 +276,6 @@ def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:
         return estimates
     return ParityEstimates(*({**part, "load": part[MOVING_LOAD]}
                              for part in (estimates.severity, estimates.mse, estimates.curvature)))
-
-
-def _indices(fault: str, severity: np.ndarray, nominal: PlantParameters, brake: np.ndarray,
-             capacity: np.ndarray) -> np.ndarray:
-    """:func:`degradation_index` of severities (k, m) whose column i is read on θ0 with TL × ``brake[i]`` and the
-    pump's capacity × (1 + ``capacity[i]``): one table look-up per distinct pair."""
-    out = np.empty(severity.shape)
-    pairs = np.stack([brake, capacity], axis=1)
-    for g, q in np.unique(pairs, axis=0):
-        at = (brake == g) & (capacity == q)
-        out[:, at] = degradation_index(fault, severity[:, at], with_brake(with_capacity(nominal, float(q)), float(g)))
-    return out
 
 
 def _determines(estimates: ParityEstimates, fault: str) -> np.ndarray:

@@ -31,6 +31,7 @@ import numpy as np
 
 from hydrowatch.condition import parity
 from hydrowatch.condition.attribution import LOOK_ALIKES, confirmed
+from hydrowatch.condition.index_table import LEAK, LeakReading
 
 SHARED_PAIR: tuple[str, str] = (parity.VALVE_HYPOTHESES[LOOK_ALIKES[0]], parity.VALVE_HYPOTHESES[LOOK_ALIKES[1]])
 """The parts that can share one index (relief_spring, valve_coil)."""
@@ -60,6 +61,9 @@ class Degradation:
     stream's next window starts."""
     shared: np.ndarray | None = None
     """(n,) bool: windows where :data:`SHARED_PAIR` share one index (module docstring); None: none."""
+    leak: LeakReading | None = None
+    """What re-reads pump_leak's history on the machine's latest pump capacity where commissioning left it
+    undetermined (:mod:`~hydrowatch.condition.index_table`); None: the capacity is θ0's."""
 
     def pair_index(self, end: int) -> np.ndarray:
         """The shared pair's index in windows 0..end − 1 (the blamed one's provisional value), NaN where not
@@ -73,16 +77,18 @@ class Degradation:
     def history(self, fault: str, upto: int | None = None) -> np.ndarray:
         """The part's own index, NaN elsewhere, shape (n,) (or (upto + 1,): as known at window ``upto``), with the
         provisional values a later pool confirmed (:func:`~.attribution.confirmed`) and, for a part of
-        :data:`SHARED_PAIR`, the pair's index where it shared one and has none of its own: what a forecast reads."""
+        :data:`SHARED_PAIR`, the pair's index where it shared one and has none of its own, and pump_leak's re-read
+        on the latest capacity (:attr:`leak`): what a forecast reads."""
         end = self.value[fault].size if upto is None else upto + 1
         own = np.where(self.measured[fault][:end], self.value[fault][:end], np.nan)
-        if self.provisional is None:
-            return own
-        valid = np.ones(end, dtype=bool) if self.valid is None else self.valid[:end]
-        own[valid] = confirmed(own[valid], self.provisional[fault][:end][valid])
+        if self.provisional is not None:
+            valid = np.ones(end, dtype=bool) if self.valid is None else self.valid[:end]
+            own[valid] = confirmed(own[valid], self.provisional[fault][:end][valid])
         if fault in SHARED_PAIR:
             pair = self.pair_index(end)
             own = np.where(np.isnan(own), pair, own)
+        if fault == LEAK and self.leak is not None:
+            own = self.leak.reread(own)
         return own
 
     def _last_valid(self, fault: str, upto: int | None) -> int | None:
@@ -140,8 +146,9 @@ class Degradation:
     def window(self, i: int, measured: bool = False) -> dict[str, dict[str, Any]]:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
         with ``measured`` each entry also says whether the value is the part's own estimate (what a forecast of
-        the machine's history reads, :meth:`history`), and a provisional entry of a window sharing the pair's index
-        names the other part (``"untold_from"``)."""
+        the machine's history reads, :meth:`history`), a provisional entry of a window sharing the pair's index
+        names the other part (``"untold_from"``), and pump_leak's carries what re-reads it (``"reading"``,
+        :meth:`~hydrowatch.condition.index_table.LeakReading.at`) where :attr:`leak` is kept."""
         out: dict[str, dict[str, Any]] = {
             f: {"value": round(float(self.value[f][i]), 4),
                 "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
@@ -155,4 +162,6 @@ class Degradation:
                     out[f] = {"value": round(float(p[i]), 4), "measured": False, "provisional": True}
                     if shared and f in SHARED_PAIR:
                         out[f]["untold_from"] = next(g for g in SHARED_PAIR if g != f)
+            if LEAK in out and self.leak is not None and np.isfinite(self.leak.capacity[i]):
+                out[LEAK]["reading"] = self.leak.at(i)
         return out

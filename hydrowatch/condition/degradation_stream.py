@@ -76,7 +76,7 @@ class DegradationStream:
         one = ParityEstimates(*({k: np.array([v]) for k, v in part.items()} for part in (severity, mse, curvature)))
         found = window_degradation(one, np.ones(1, dtype=bool), f.nominal_, (f.window - 1) // parity.BLOCK,
                                    f.relations_, self.pool, blamed, excess, brake, capacity,
-                                   pool_severity=medians, held=self._held,
+                                   capacity_known=self._capacity is None, pool_severity=medians, held=self._held,
                                    relief_barely_seen=relief_barely_seen(getattr(f, "pump_at_limit_", None)))
         self._held = found.held
         return found.window(0, measured=True)

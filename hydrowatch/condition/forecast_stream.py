@@ -13,7 +13,9 @@ was blamed, :meth:`~hydrowatch.condition.degradation.Degradation.history`), and 
 blamed before the pool could tell it apart (float32, kept until a later window confirms it), and the index the relief
 spring and the coil share where a unit whose relief was barely seen cannot tell them apart (float32, one per window:
 :mod:`~hydrowatch.condition.degradation_series`). With the default :data:`HISTORY_WINDOWS` (1440: two hours of 5 s
-windows) that is 1440 × (8 + 2 × 6 × 4 + 4) B = 87 kB per machine. A
+windows) that is 1440 × (8 + 2 × 6 × 4 + 4) B = 87 kB per machine; on a unit whose commissioning left the pump's
+capacity undetermined, also pump_leak's reading per window (ŝ, Pc / P̄s, brake factor and q̂, float64, 46 kB), so
+that a forecast reads its history on the latest capacity (:mod:`~hydrowatch.condition.index_table`). A
 forecast rests on at most that history, so it reaches at most :data:`~hydrowatch.condition.forecast.HORIZON_FACTOR`
 × its span ahead (20 h for two hours); a part wearing over days needs a longer ``capacity``.
 """
@@ -29,6 +31,7 @@ import numpy as np
 from hydrowatch.condition.attribution import confirmed
 from hydrowatch.condition.degradation_series import SHARED_PAIR
 from hydrowatch.condition.forecast import Forecast, forecast_alert, ruled_out_forecast
+from hydrowatch.condition.index_table import LEAK, reread_leak
 from hydrowatch.condition.ring import Ring
 from hydrowatch.errors import ParameterError
 from hydrowatch.plant.faults import FAULTS
@@ -68,6 +71,16 @@ class ForecastStream:
         self._seen: set[str] = set()
         """Parts that had a finite value in some window: the parts forecast (as ``score --json`` forecasts the parts
         with a finite value in the file)."""
+        self._readings: Ring | None = None
+        """pump_leak's reading per window (ŝ, Pc / P̄s, brake factor, q̂; NaN where none): made at the first window
+        that carries one (a unit whose commissioning left the pump's capacity undetermined)."""
+        self._nominal: Any = None
+        """θ0 of the latest reading; windows read on another θ0 are not re-read (the scorer starts its histories again
+        on a model switch; a stream fed across one keeps the older windows as read)."""
+        self._nominal_from = 0
+        """Windows added before the first reading on :attr:`_nominal`."""
+        self._added = 0
+        """Windows added so far."""
 
     def __len__(self) -> int:
         return len(self._t)
@@ -75,7 +88,8 @@ class ForecastStream:
     @property
     def nbytes(self) -> int:
         """Bytes of the history's arrays."""
-        return int(self._t.nbytes + self._index.nbytes + self._provisional.nbytes + self._shared.nbytes)
+        readings = 0 if self._readings is None else self._readings.nbytes
+        return int(self._t.nbytes + self._index.nbytes + self._provisional.nbytes + self._shared.nbytes + readings)
 
     def update(self, start_s: float, degradation: Mapping[str, Mapping[str, Any]]) -> None:
         """Add one valid window: its start time, s, and ``{fault: {"value", "measured", "provisional"}}``
@@ -102,21 +116,46 @@ class ForecastStream:
             self._seen.add(fault)
             if entry.get("measured", True):
                 row[j] = entry["value"]
+        self._add_reading((degradation.get(LEAK) or {}).get("reading"))
         self._t.add(start_s)
         self._index.add(row)
         self._provisional.add(waiting)
         self._shared.add(np.float32(next(iter(shared.values()))["value"]) if shared else np.float32(np.nan))
+        self._added += 1
+
+    def _add_reading(self, reading: Mapping[str, Any] | None) -> None:
+        """Keep the window's pump_leak reading (None: none), before the window joins the history."""
+        if reading is None and self._readings is None:
+            return
+        if self._readings is None:  # the first: the windows before it have none
+            self._readings = Ring(self.capacity, (4,))
+            for _ in range(len(self._t)):
+                self._readings.add(np.nan)
+        if reading is None:
+            self._readings.add(np.nan)
+            return
+        if self._nominal is None or reading["nominal"] != self._nominal:
+            self._nominal, self._nominal_from = reading["nominal"], self._added
+        self._readings.add([reading[k] for k in ("severity", "limit_ratio", "brake", "capacity")])
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """The windows held in arrival order: start times (n,), s, and each part's history (n, len(FAULTS)), float64:
-        its own index, its provisional values that a later window confirmed, and for the pair the index it shared
-        where it has none of its own (as :meth:`~.degradation_series.Degradation.history`)."""
+        its own index, its provisional values that a later window confirmed, for the pair the index it shared
+        where it has none of its own, and pump_leak re-read on the latest capacity (as
+        :meth:`~.degradation_series.Degradation.history`)."""
         index, waiting = self._index.rows().astype(np.float64), self._provisional.rows().astype(np.float64)
         pair = self._shared.rows().astype(np.float64)
         out = np.stack([confirmed(index[:, j], waiting[:, j]) for j in range(len(FAULTS))], axis=1)
         for f in SHARED_PAIR:
             j = FAULTS.index(f)
             out[:, j] = np.where(np.isnan(out[:, j]), pair, out[:, j])
+        if self._readings is not None:  # pump_leak re-read on the latest capacity (index_table)
+            readings = self._readings.rows()
+            before = self._added - len(readings) + np.arange(len(readings)) < self._nominal_from
+            readings[before] = np.nan  # read on another θ0: kept as read
+            j = FAULTS.index(LEAK)
+            severity, ratio, brake, capacity = readings.T
+            out[:, j] = reread_leak(out[:, j], severity, ratio, brake, capacity, self._nominal)
         return self._t.rows(), out
 
     def get(self, *, max_gap_s: float = 3600.0, min_span_s: float = 300.0) -> dict[str, Forecast]:
