@@ -65,6 +65,7 @@ from hydrowatch.condition.attribution import attributed_valve_fault as attribute
 from hydrowatch.condition.attribution import pool_misfit as pool_misfit
 from hydrowatch.condition.brake import brake_factors
 from hydrowatch.condition.capacity import PUMP_LIMIT, PUMP_LIMITED, capacity_errors, corrected
+from hydrowatch.condition.degradation_series import SHARED_PAIR
 from hydrowatch.condition.degradation_series import Degradation as Degradation  # the public name stays here
 from hydrowatch.condition.estimates import MOVING_LOAD, ParityEstimates, severity_standard_error
 from hydrowatch.condition.features import ConditionFeatures
@@ -259,12 +260,19 @@ def window_degradation(estimates: ParityEstimates, valid: np.ndarray, nominal: P
         others = [j for j in range(len(parity.VALVE_HYPOTHESES)) if j not in LOOK_ALIKES]
         pair = untold & contender[:, list(LOOK_ALIKES)].all(axis=1) & ~contender[:, others].any(axis=1)
     shared = pair & np.isfinite(np.fmax(*(provisional[parity.VALVE_HYPOTHESES[j]] for j in LOOK_ALIKES)))
+    shared_index = None
+    if shared.any():  # one reading of the pair: the mean of both parts' own where determined (degradation_series)
+        own_reads = np.stack([np.where(read[f][3], read[f][0], np.nan) for f in SHARED_PAIR])
+        with np.errstate(invalid="ignore"):  # a window that determines neither: NaN (never a shared one)
+            mean = np.nansum(own_reads, axis=0) / np.isfinite(own_reads).sum(axis=0)
+        shared_index = np.where(shared, _spread(mean, valid), np.nan)
     leak = None
     if not capacity_known and LEAK in read:  # the capacity is the history's: a forecast re-reads on its latest
         has = measured[LEAK] | np.isfinite(provisional[LEAK])
         leak = LeakReading(nominal, *(np.where(has, _spread(x, valid), np.nan) for x in (
             own.severity[LEAK], np.nan_to_num(ratio, nan=0.0), brake, np.asarray(capacity, dtype=np.float64))))
-    return Degradation(value, low, high, measured, provisional, valid, held, shared if shared.any() else None, leak)
+    return Degradation(value, low, high, measured, provisional, valid, held, shared if shared.any() else None,
+                       shared_index, leak)
 
 
 def _load_away_from_standstill(estimates: ParityEstimates) -> ParityEstimates:

@@ -19,6 +19,14 @@ and the blamed one reads at least :data:`~hydrowatch.condition.attribution.UNTOL
 the pair's index is each part's history for the forecast where it has none of its own, and a forecast made while
 the last window is so says ``untold_from`` the other part: "this part, or that one". ``score --json``'s windows and
 the health message are unchanged (neither part has an index there).
+
+**One reading of the pair** (2026-12-04, stop 63). The index the pair shares in a window is the mean of the two
+parts' own readings there (each hypothesis's index on its own fit, where the fit determines it), not the blamed
+one's: which of the two the pool blames switches while they are untold, and their readings differ by a few
+hundredths (on fresh flagged unit 3029/38's relief path the coil's read −0.003 to −0.009 from the truth at true
+0.1–0.4, the relief's +0.001 to +0.006 from 0.4 on), so a history that followed the blame stepped up where the blame
+moved, the accelerating trend won and the relief's forecast came 41.2 % early; on the mean, 3.3 % (docs/
+degradation.md, "One reading of the pair").
 """
 
 from __future__ import annotations
@@ -61,18 +69,19 @@ class Degradation:
     stream's next window starts."""
     shared: np.ndarray | None = None
     """(n,) bool: windows where :data:`SHARED_PAIR` share one index (module docstring); None: none."""
+    pair: np.ndarray | None = None
+    """(n,): the index :data:`SHARED_PAIR` share in each :attr:`shared` window, NaN elsewhere (module docstring,
+    "One reading of the pair"); None: none."""
     leak: LeakReading | None = None
     """What re-reads pump_leak's history on the machine's latest pump capacity where commissioning left it
     undetermined (:mod:`~hydrowatch.condition.index_table`); None: the capacity is θ0's."""
 
     def pair_index(self, end: int) -> np.ndarray:
-        """The shared pair's index in windows 0..end − 1 (the blamed one's provisional value), NaN where not
-        :attr:`shared`, shape (end,)."""
-        out = np.full(end, np.nan)
-        if self.shared is None or self.provisional is None:
-            return out
-        value = np.fmax(*(np.asarray(self.provisional[f][:end], dtype=np.float64) for f in SHARED_PAIR))
-        return np.where(self.shared[:end], value, np.nan)
+        """The shared pair's index in windows 0..end − 1 (:attr:`pair`), NaN where not :attr:`shared`, shape
+        (end,)."""
+        if self.shared is None or self.pair is None:
+            return np.full(end, np.nan)
+        return np.where(self.shared[:end], self.pair[:end], np.nan)
 
     def history(self, fault: str, upto: int | None = None) -> np.ndarray:
         """The part's own index, NaN elsewhere, shape (n,) (or (upto + 1,): as known at window ``upto``), with the
@@ -147,8 +156,9 @@ class Degradation:
         """``score --json``'s ``degradation`` of window ``i``: {FAULT: {"value", "ci95": [lo, hi]}}, finite only;
         with ``measured`` each entry also says whether the value is the part's own estimate (what a forecast of
         the machine's history reads, :meth:`history`), a provisional entry of a window sharing the pair's index
-        names the other part (``"untold_from"``), and pump_leak's carries what re-reads it (``"reading"``,
-        :meth:`~hydrowatch.condition.index_table.LeakReading.at`) where :attr:`leak` is kept."""
+        names the other part (``"untold_from"``) and carries the pair's index (``"pair"``), and pump_leak's
+        carries what re-reads it (``"reading"``, :meth:`~hydrowatch.condition.index_table.LeakReading.at`) where
+        :attr:`leak` is kept."""
         out: dict[str, dict[str, Any]] = {
             f: {"value": round(float(self.value[f][i]), 4),
                 "ci95": [round(float(self.low[f][i]), 4), round(float(self.high[f][i]), 4)]}
@@ -162,6 +172,7 @@ class Degradation:
                     out[f] = {"value": round(float(p[i]), 4), "measured": False, "provisional": True}
                     if shared and f in SHARED_PAIR:
                         out[f]["untold_from"] = next(g for g in SHARED_PAIR if g != f)
+                        out[f]["pair"] = round(float(self.pair_index(i + 1)[i]), 4)
             if LEAK in out and self.leak is not None and np.isfinite(self.leak.capacity[i]):
                 out[LEAK]["reading"] = self.leak.at(i)
         return out

@@ -94,8 +94,8 @@ class ForecastStream:
     def update(self, start_s: float, degradation: Mapping[str, Mapping[str, Any]]) -> None:
         """Add one valid window: its start time, s, and ``{fault: {"value", "measured", "provisional"}}``
         (``measured`` absent reads True; a ``provisional`` value waits for a later window to confirm it,
-        :func:`~hydrowatch.condition.attribution.confirmed`; one naming ``untold_from`` is the index the pair shares,
-        :meth:`~.degradation_series.Degradation.window`). Returns nothing."""
+        :func:`~hydrowatch.condition.attribution.confirmed`; one naming ``untold_from`` carries the index the pair
+        shares, ``"pair"``, :meth:`~.degradation_series.Degradation.window`). Returns nothing."""
         row, waiting = (np.full(len(FAULTS), np.nan, dtype=np.float32) for _ in range(2))
         shared = {f: e for f, e in degradation.items() if e.get("untold_from")}
         says = any(f in degradation and np.isfinite(degradation[f]["value"]) for f in SHARED_PAIR)
@@ -120,7 +120,7 @@ class ForecastStream:
         self._t.add(start_s)
         self._index.add(row)
         self._provisional.add(waiting)
-        self._shared.add(np.float32(next(iter(shared.values()))["value"]) if shared else np.float32(np.nan))
+        self._shared.add(np.float32(next(iter(shared.values()))["pair"]) if shared else np.float32(np.nan))
         self._added += 1
 
     def _add_reading(self, reading: Mapping[str, Any] | None) -> None:
