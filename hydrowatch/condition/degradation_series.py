@@ -172,7 +172,7 @@ class Degradation:
                     out[f] = {"value": round(float(p[i]), 4), "measured": False, "provisional": True}
                     if shared and f in SHARED_PAIR:
                         out[f]["untold_from"] = next(g for g in SHARED_PAIR if g != f)
-                        out[f]["pair"] = round(float(self.pair_index(i + 1)[i]), 4)
+                        out[f]["pair"] = round(float(self.pair[i]), 4) if self.pair is not None else float("nan")
             if LEAK in out and self.leak is not None and np.isfinite(self.leak.capacity[i]):
                 out[LEAK]["reading"] = self.leak.at(i)
         return out
