@@ -75,12 +75,8 @@ class ForecastStream:
         """pump_leak's reading per window (ŝ, Pc / P̄s, brake factor, q̂; NaN where none): made at the first window
         that carries one (a unit whose commissioning left the pump's capacity undetermined)."""
         self._nominal: Any = None
-        """θ0 of the latest reading; windows read on another θ0 are not re-read (the scorer starts its histories again
-        on a model switch; a stream fed across one keeps the older windows as read)."""
-        self._nominal_from = 0
-        """Windows added before the first reading on :attr:`_nominal`."""
-        self._added = 0
-        """Windows added so far."""
+        """θ0 of the readings held; a reading on another θ0 starts the readings again, so the windows before it are
+        kept as read (the scorer starts its histories again on a model switch; a stream fed across one does this)."""
 
     def __len__(self) -> int:
         return len(self._t)
@@ -121,21 +117,21 @@ class ForecastStream:
         self._index.add(row)
         self._provisional.add(waiting)
         self._shared.add(np.float32(next(iter(shared.values()))["pair"]) if shared else np.float32(np.nan))
-        self._added += 1
 
     def _add_reading(self, reading: Mapping[str, Any] | None) -> None:
         """Keep the window's pump_leak reading (None: none), before the window joins the history."""
+        if reading is not None and self._nominal is not None and reading["nominal"] != self._nominal:
+            self._readings = None  # read on another θ0: the windows before keep their values as read
         if reading is None and self._readings is None:
             return
-        if self._readings is None:  # the first: the windows before it have none
+        if self._readings is None:  # the first (on this θ0): the windows before it have none
             self._readings = Ring(self.capacity, (4,))
             for _ in range(len(self._t)):
                 self._readings.add(np.nan)
         if reading is None:
             self._readings.add(np.nan)
             return
-        if self._nominal is None or reading["nominal"] != self._nominal:
-            self._nominal, self._nominal_from = reading["nominal"], self._added
+        self._nominal = reading["nominal"]
         self._readings.add([reading[k] for k in ("severity", "limit_ratio", "brake", "capacity")])
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
@@ -150,11 +146,8 @@ class ForecastStream:
             j = FAULTS.index(f)
             out[:, j] = np.where(np.isnan(out[:, j]), pair, out[:, j])
         if self._readings is not None:  # pump_leak re-read on the latest capacity (index_table)
-            readings = self._readings.rows()
-            before = self._added - len(readings) + np.arange(len(readings)) < self._nominal_from
-            readings[before] = np.nan  # read on another θ0: kept as read
             j = FAULTS.index(LEAK)
-            severity, ratio, brake, capacity = readings.T
+            severity, ratio, brake, capacity = self._readings.rows().T
             out[:, j] = reread_leak(out[:, j], severity, ratio, brake, capacity, self._nominal)
         return self._t.rows(), out
 
