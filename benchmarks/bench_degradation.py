@@ -39,8 +39,9 @@ re-measured on the same windows. ``--relief-shut``: only units whose commissioni
 of its samples or more (``unit_checks.RELIEF_SHUT_SHARE``: the relief's gain barely seen, about 1 unit in 13; half or
 more before stop 60, about 1 in 40–80), the
 first ``--units`` of each seed (unit numbers are their place in the seed's draws). Seeds 7 and 2054–2093 tuned the
-constants of hydrowatch/condition/degradation.py, attribution.py and forecast.py during development
-(docs/degradation.md says which did what); report on another seed.
+constants of hydrowatch/condition/degradation.py, attribution.py and forecast.py during development, and later
+stops' fresh seeds once a change was chosen on them (up to 2120 and 3030 by stop 64; docs/degradation.md says which
+did what); report on another seed.
 """
 
 from __future__ import annotations

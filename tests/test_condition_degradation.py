@@ -13,6 +13,7 @@ from hydrowatch.condition.attribution import (
     EARLY_MARGIN,
     HELD_MARGIN,
     LIMITED_SAY,
+    LOOK_ALIKE_MARGIN,
     NOMINAL_VALVE,
     confirmed,
     contenders,
@@ -512,21 +513,67 @@ def test_where_the_commissioning_barely_saw_the_relief_its_early_wear_is_not_tol
     assert relief_barely_seen(0.38) and not relief_barely_seen(None)  # 2102 unit 0 (stop 60): Kr seen 0.79 ×
 
 
+def test_the_relief_and_the_coil_need_the_wider_margin_early():
+    # regular unit 2119/0's relief path (fresh, stop 63; commissioning at the pump's limit in 27 % of its samples):
+    # the coil told apart from the wearing relief by 7.0-8.3 nats at pool levels 0.12-0.17, reading 0.15-0.20 on the
+    # wrong part. Below the early level the pair needs LOOK_ALIKE_MARGIN; any other runner-up the early margin
+    relief, coil, leak = (VALVE_HYPOTHESES.index(f) for f in ("relief_spring", "valve_coil", "valve_leak"))
+    assert EARLY_MARGIN < 8.3 < LOOK_ALIKE_MARGIN < 11.0
+    for blamed, runner_up in ((coil, relief), (relief, coil), (coil, leak)):
+        excess = np.full((4, 4), 50.0)
+        excess[:, blamed] = 0.0
+        excess[:, runner_up] = [8.3, 8.3, 11.0, 8.3]
+        near, _ = contenders(excess, np.array([0.15, 0.12, 0.15, 0.30]))
+        pair = runner_up != leak
+        np.testing.assert_array_equal(near.sum(axis=1) == 1, [not pair, not pair, True, True])
+        assert near[:, blamed].all()
+
+
+def test_a_part_of_the_pair_held_on_a_barely_seen_relief_is_not_told_from_its_look_alike_before_the_warning():
+    # flagged unit 3029/36's relief path (stop 63; at the pump's limit in 51 % of its commissioning, Kr seen 0.63 x):
+    # the relief told apart at 0.29 by 10-11 nats, then the coil by 10.4-17.9 at 0.43-0.47 (the coil read the
+    # relief's 0.29-0.46). On such a unit the part of the pair held stays a contender of the other up to the warning;
+    # on a regular unit the held margin (7) decides
+    relief, coil = VALVE_HYPOTHESES.index("relief_spring"), VALVE_HYPOTHESES.index("valve_coil")
+    excess = np.full((4, 4), 50.0)
+    excess[0, relief], excess[0, coil] = 0.0, 11.0  # the relief told apart while worn: held
+    excess[1:, coil], excess[1:, relief] = 0.0, 17.9  # then the coil ahead by 17.9 nats
+    level = np.array([0.29, 0.43, 0.47, 0.55])
+    assert HELD_MARGIN < 17.9 and EARLY_LEVEL < 0.29 < 0.47 < BARELY_SEEN_LEVEL < 0.55
+    near, held = contenders(excess, level, relief_barely_seen=True)
+    np.testing.assert_array_equal(near.sum(axis=1) == 1, [True, False, False, True])
+    assert near[1:3, relief].all() and held == coil  # past the warning the coil is told apart, and held
+    near, held = contenders(excess, level)
+    assert (near.sum(axis=1) == 1).all() and held == coil
+    # carried from one call to the next as the online stream does
+    first, held = contenders(excess[:1], level[:1], relief_barely_seen=True)
+    assert held == relief
+    rest, _ = contenders(excess[1:], level[1:], held, relief_barely_seen=True)
+    np.testing.assert_array_equal(np.vstack([first, rest]), contenders(excess, level, relief_barely_seen=True)[0])
+    # a held part outside the pair keeps the held margin only: a valve leak held, the coil ahead of it by 17.9
+    other = excess.copy()
+    leak = VALVE_HYPOTHESES.index("valve_leak")
+    other[0], other[1:, leak], other[1:, relief] = [50.0, 50.0, 11.0, 0.0], 17.9, 50.0
+    near, held = contenders(other, level, relief_barely_seen=True)
+    assert (near.sum(axis=1) == 1).all() and held == coil
+
+
 def test_an_early_wear_is_told_apart_only_by_the_early_margin():
-    # the relief at severity 0.1 (index 0.22, below the early level) explains 14 windows 2x better than the coil
-    # (log 2 per window), which explains them at severity 0.1 too: 3 nats after 5 windows, 7 only after 11
+    # the relief at severity 0.1 (index 0.22, below the early level) explains 14 windows 2x better than the valve
+    # leak (log 2 per window), which explains them at severity 0.1 too: 3 nats after 5 windows, 7 only after 11
+    # (the coil, the relief's own look-alike, needs more: test_the_relief_and_the_coil_need_the_wider_margin_early)
     n, mse = 14, 1e-4
-    severity = {f: np.full(n, 0.1 if f in ("relief_spring", "valve_coil") else 0.0) for f in FAULTS}
+    severity = {f: np.full(n, 0.1 if f in ("relief_spring", "valve_leak") else 0.0) for f in FAULTS}
     mses = {"load": np.full(n, mse), "motor": np.full(n, mse), **{f: np.full(n, 5 * mse) for f in VALVE_HYPOTHESES}}
-    mses["relief_spring"], mses["valve_coil"] = np.full(n, mse), np.full(n, 2 * mse)
+    mses["relief_spring"], mses["valve_leak"] = np.full(n, mse), np.full(n, 2 * mse)
     fits = ParityEstimates(severity, mses, {f: np.full(n, 5.0) for f in FAULTS})
     nominal, valid = PlantParameters(), np.ones(n, dtype=bool)
     want = float(degradation_index("relief_spring", 0.1, nominal))
     assert UNTOLD_LEVEL < want < EARLY_LEVEL and 10 * np.log(2) < EARLY_MARGIN < 11 * np.log(2)
     d = window_degradation(fits, valid, nominal, 124, ("load", "motor", "valve"), pool=n)
-    assert np.isnan(d.value["relief_spring"][:10]).all() and np.isnan(d.value["valve_coil"][:10]).all()
+    assert np.isnan(d.value["relief_spring"][:10]).all() and np.isnan(d.value["valve_leak"][:10]).all()
     assert d.value["relief_spring"][10:] == pytest.approx(np.full(n - 10, want))
-    assert (d.value["valve_coil"][10:] == 0.0).all()  # ruled out once told apart
+    assert (d.value["valve_leak"][10:] == 0.0).all()  # ruled out once told apart
     assert d.history("relief_spring") == pytest.approx(np.full(n, want))  # the pool of window 10 confirms the rest
     # the level is the pool's median, not the window's own: one window whose relief fit spikes past the early level
     # (severity 0.2, index 0.46; a flat fit, c 0.02, so the pool's relief still leads by 7 log 2 − 1.1 > 3 there) in
@@ -537,9 +584,9 @@ def test_an_early_wear_is_told_apart_only_by_the_early_margin():
     flat["relief_spring"][6] = 0.02
     d = window_degradation(ParityEstimates(spike, mses, flat), valid, nominal, 124, ("load", "motor", "valve"), pool=n)
     gap = attributed_valve_fault(*({f: a[f] for f in VALVE_HYPOTHESES} for a in (spike, mses, flat)), valid, pool=n,
-                                 with_excess=True)[1][6, VALVE_HYPOTHESES.index("valve_coil")]
+                                 with_excess=True)[1][6, VALVE_HYPOTHESES.index("valve_leak")]
     assert ATTRIBUTION_MARGIN < gap < EARLY_MARGIN
-    assert np.isnan(d.value["relief_spring"][6]) and np.isnan(d.value["valve_coil"][6])
+    assert np.isnan(d.value["relief_spring"][6]) and np.isnan(d.value["valve_leak"][6])
     # the same pools told apart by the lower margin where the wear is past the early level (the median above it)
     late = {f: np.where(severity[f] > 0, 0.15, 0.0) for f in FAULTS}
     d = window_degradation(ParityEstimates(late, mses, fits.curvature), valid, nominal, 124,

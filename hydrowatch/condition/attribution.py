@@ -66,6 +66,15 @@ above 0.15 on 3017/3018's 16 units 3 → 1 (the one left pump_leak at the path's
 every index MAE within 0.001 on all 64 units and on the regular units 2100–2103; fewer indexed early windows of the
 relief and the coil (median path 18 → 12 % and 27 → 23 % on 3017/3018), more forecasts naming both
 (docs/degradation.md)."""
+LOOK_ALIKE_MARGIN = 10.0
+"""Pool misfit (nats) by which the relief spring and the coil (:data:`LOOK_ALIKES`) must beat each other to be told
+apart while the blamed one's wear is early (below :data:`EARLY_LEVEL`), on every unit; any other runner-up:
+:data:`EARLY_MARGIN`. On fresh regular unit 2119/0 (stop 63; its commissioning at the pump's limit in 27 % of its
+samples, Kr identified at 0.84 ×) the coil beat a wearing relief by 7.0–8.3 nats at pool levels 0.12–0.17 and read
+0.15–0.20 in 2.3 % of the relief path's windows. :data:`BARELY_SEEN_MARGIN`'s value, not one fitted to that unit. On
+the stored fits of 16 regular units (seeds 2117–2120, tuning since): paths with another part above 0.15 1 → 0 of 96,
+every forecast within 0.5 point but one (1.1 points), fewer early indexed windows of the coil (median path 53.5 →
+45.5 %) and the relief (47.9 → 46.1 %; docs/degradation.md, "The look-alike pair in early wear")."""
 EARLY_LEVEL = 0.25
 """Index (of the blamed valve-side part at its pool's median severity) below which the pool must tell it from the
 runner-up by :data:`EARLY_MARGIN` rather than :data:`ATTRIBUTION_MARGIN`. A wear this early moves the valve relation
@@ -175,7 +184,8 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     included). The margin is :data:`EARLY_MARGIN` where the blamed part's ``level`` (its index at
     :func:`pool_median`, shape (n,); inf or NaN: none) is below :data:`EARLY_LEVEL`, else :data:`ATTRIBUTION_MARGIN`;
     and :data:`HELD_MARGIN` for the held part: the one the last pool told apart (the only contender) at a level of
-    :data:`EARLY_LEVEL` or more, before this window (``held`` before the first, −1: none). Windows in time order; no
+    :data:`EARLY_LEVEL` or more, before this window (``held`` before the first, −1: none). The relief spring and the
+    coil (:data:`LOOK_ALIKES`) need :data:`LOOK_ALIKE_MARGIN` from each other in early wear. Windows in time order; no
     ``excess``: no contenders (every window told apart) and ``held`` unchanged.
 
     With ``relief_barely_seen`` (the unit's commissioning had the pump at its limit in
@@ -183,8 +193,11 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
     uncertain) the relief spring and the coil are each other's contenders while the blamed one of them is below
     :data:`EARLY_LEVEL`, whatever the excess: the relief hypothesis, fitted with a wrong Kr, explains the relief's own
     early wear worse than the coil does (docs/degradation.md, "A relief barely seen"); and the margin is
-    :data:`BARELY_SEEN_MARGIN` up to :data:`BARELY_SEEN_LEVEL`; ``blamed`` (shape (n,), −1: invalid) is the part with no
-    excess, found from ``excess`` when not given.
+    :data:`BARELY_SEEN_MARGIN` up to :data:`BARELY_SEEN_LEVEL`, below which a held part of the pair stays a contender
+    of the other whatever the excess: strong evidence for one and then for the other is no evidence (flagged unit
+    3029/36: the relief told apart by 10–11 nats at 0.29, then the coil by 10–18 at 0.43–0.47; docs/degradation.md,
+    "The look-alike pair in early wear"); ``blamed`` (shape (n,), −1: invalid) is the part with no excess, found from
+    ``excess`` when not given.
     """
     lv = np.asarray(level, dtype=np.float64)
     if excess is None:
@@ -196,13 +209,20 @@ def contenders(excess: np.ndarray | None, level: np.ndarray, held: int = -1,
         with np.errstate(invalid="ignore"):
             margin = np.where(lv >= BARELY_SEEN_LEVEL, margin, BARELY_SEEN_MARGIN)
     near = np.asarray(excess) < margin[:, None]
-    if relief_barely_seen:
-        if blamed is None:
-            blamed = np.where(np.isfinite(excess).all(axis=1), np.argmin(excess, axis=1), -1)
-        for a, b in (LOOK_ALIKES, LOOK_ALIKES[::-1]):
-            near[~worn & (blamed == a), b] = True
+    if blamed is None:
+        blamed = np.where(np.isfinite(excess).all(axis=1), np.argmin(excess, axis=1), -1)
+    for a, b in (LOOK_ALIKES, LOOK_ALIKES[::-1]):
+        early = ~worn & (blamed == a)
+        near[early, b] |= np.asarray(excess)[early, b] < LOOK_ALIKE_MARGIN
+        if relief_barely_seen:
+            near[early, b] = True
+    with np.errstate(invalid="ignore"):
+        below_warning = lv < BARELY_SEEN_LEVEL
     for i in range(near.shape[0]):  # sequential: each window's held part is the last one told apart before it
         if held >= 0 and excess[i, held] < HELD_MARGIN:
+            near[i, held] = True
+        if (relief_barely_seen and below_warning[i] and held in LOOK_ALIKES and blamed[i] in LOOK_ALIKES
+                and blamed[i] != held):  # the look-alike of the held part: not told from it before the warning
             near[i, held] = True
         if worn[i] and near[i].sum() == 1:
             held = int(np.argmax(near[i]))
