@@ -217,7 +217,7 @@ def test_scorer_service_publishes_each_machines_forecast(parity: dict, wearing: 
              ((wearing["worn"], "worn"), (wearing["healthy"], "healthy"))]
     messages: list = []
     code, got, _ = scorer_round_trip(parity["out"], named, COLUMNS, WEAR_SECONDS * 200, 2 * WEAR_SECONDS // 5,
-                                     ("--forecast-every", "12"), forecasts=messages)
+                                     ("--forecast-every", "12"), forecasts=messages, want_forecasts=20)
     assert code == 0 and {m: len(rows) for m, rows in got.items()} == {"worn": 120, "healthy": 120}
     by_machine: dict[str, list] = {}
     for message in messages:
